@@ -1,0 +1,32 @@
+# Two entry points for a fresh machine (Python 3.11, git, make):
+#   make study   set up .venv and run the full paper study (results/)
+#   make test    set up .venv and run the tests, including the Snakemake smoke run
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+CORES ?= 2
+
+.PHONY: study test setup smoke clean-results
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+
+$(STAMP): $(BIN)/python pyproject.toml requirements.lock
+	$(BIN)/python -m pip install --quiet --upgrade pip==23.2.1 || true
+	$(BIN)/python -m pip install --quiet -c requirements.lock -e '.[test]'
+	touch $(STAMP)
+
+setup: $(STAMP)
+
+study: $(STAMP)
+	$(BIN)/snakemake -s workflow/Snakefile --configfile configs/study.yaml --cores $(CORES) -p
+
+smoke: $(STAMP)
+	$(BIN)/snakemake -s workflow/Snakefile --configfile configs/smoke.yaml --cores $(CORES) -p
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q -n $(CORES) --dist loadgroup
+
+clean-results:
+	rm -rf results/*/ results/*.parquet

@@ -1,0 +1,83 @@
+"""The typer front end: parse, validate, call one step, write, exit code.
+
+Exit codes (contract section 5): 0 success; 2 bad input (one line on stderr
+saying what and where); 1 internal error (traceback only with ``--debug``).
+Each command group lives in its own module with a ``register(app)`` function.
+"""
+from __future__ import annotations
+
+import sys
+import traceback
+
+import typer
+
+from .. import __version__
+from ..errors import InputError
+
+app = typer.Typer(
+    name="capsule-cli",
+    help="Study pipeline for self-propelled vibro-impact capsule robots: contact pressure, "
+         "friction laws, non-smooth dynamics, and the model-versus-measurement loop. "
+         "SI inside; table columns carry their unit as a suffix (speed_mm_s, friction_mN).",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+
+
+def _version_callback(value: bool):
+    if value:
+        typer.echo(f"capsule-cli {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: bool = typer.Option(False, "--version", callback=_version_callback, is_eager=True,
+                                 help="Print the version and exit."),
+    debug: bool = typer.Option(False, "--debug", help="Show a traceback on internal errors."),
+):
+    """capsule-cli: vibro-impact capsule robot studies."""
+
+
+def _register_all() -> None:
+    from . import contact, dynamics, friction, loop  # noqa: F401  (each adds its commands)
+
+    for mod in (contact, friction, dynamics, loop):
+        mod.register(app)
+
+
+_register_all()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console entry point; returns (and exits with) the contract's exit code.
+
+    Usage errors are reported by typer with exit code 2; :class:`InputError`
+    from a command becomes one line on stderr and exit code 2; anything else
+    is a bug: exit code 1, traceback only with ``--debug``.
+    """
+    args = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in args
+    command = typer.main.get_command(app)
+    try:
+        command.main(args=args, prog_name="capsule-cli", standalone_mode=True)
+        code = 0
+    except SystemExit as exc:
+        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    except InputError as exc:
+        typer.echo(f"capsule-cli: error: {exc}", err=True)
+        code = 2
+    except KeyboardInterrupt:
+        code = 130
+    except Exception as exc:  # a bug
+        if debug:
+            traceback.print_exc()
+        else:
+            typer.echo(f"capsule-cli: internal error: {type(exc).__name__}: {exc} "
+                       "(rerun with --debug for a traceback)", err=True)
+        code = 1
+    if argv is None:
+        sys.exit(code)
+    return code

@@ -1,0 +1,1 @@
+"""Figures: tables in, figures out; never recompute physics here (style.md section 3)."""

@@ -1,0 +1,1 @@
+"""Pydantic schemas of the study config, one module per stage."""

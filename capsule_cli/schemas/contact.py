@@ -1,0 +1,12 @@
+"""Study-config section for the contact stage (see capsule_cli.config.StudyConfig)."""
+from __future__ import annotations
+
+from pydantic import Field
+
+from ..config_base import Strict
+
+
+class ContactStudy(Strict):
+    """Settings of the contact stage of the study; every field has units in its description."""
+
+    enabled: bool = Field(default=True, description="run this stage in the study")

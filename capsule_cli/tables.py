@@ -1,0 +1,423 @@
+"""The only Parquet I/O of the project: table schemas, atomic writes, provenance,
+and validation of measurement tables (contract section 3).
+
+Every table written by the project has a :class:`TableSchema`; each column's
+unit and description go into the Parquet field metadata and the provenance
+(package version, git commit, config hash, command line, seed, synthetic flag)
+into the schema metadata under the key ``capsule_cli``.
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from . import __version__
+from .errors import InputError
+from .units import UNITS, convert, dimension, split_unit, unit_label
+
+PROVENANCE_KEY = b"capsule_cli"
+
+# ---------------------------------------------------------------------------
+# atomic writes
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike):
+    """Yield a temporary path beside ``path``; move it into place only on success.
+
+    A failed write leaves neither a half-written file nor the temporary one.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
+    """Write ``text`` to ``path`` atomically and return the path."""
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(text, encoding="utf-8")
+    return Path(path)
+
+
+def write_json_atomic(path: str | os.PathLike, data) -> Path:
+    """Write ``data`` as indented JSON (NaN/inf as null-safe strings) atomically."""
+    return write_text_atomic(path, json.dumps(_jsonable(data), indent=2, sort_keys=False) + "\n")
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, (np.floating, float)):
+        x = float(x)
+        return x if np.isfinite(x) else (None if np.isnan(x) else ("inf" if x > 0 else "-inf"))
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, Path):
+        return str(x)
+    return x
+
+
+# ---------------------------------------------------------------------------
+# provenance
+
+
+def git_commit() -> str | None:
+    """Return the git commit of the source tree (with '-dirty'), or None outside git."""
+    root = Path(__file__).resolve().parents[1]
+    try:
+        sha = subprocess.run(["git", "-C", str(root), "rev-parse", "--short=12", "HEAD"],
+                             capture_output=True, text=True, timeout=5)
+        if sha.returncode != 0:
+            return None
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=5)
+        return sha.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def provenance(config_hash: str | None = None, seed: int | None = None, synthetic: bool = False,
+               **extra) -> dict:
+    """Return the provenance record stored with every table.
+
+    Parameters
+    ----------
+    config_hash : hash of the config or model file the table was made from
+    seed : random seed used, if any
+    synthetic : True for data made by ``capsule-cli synth`` (never a measurement)
+    extra : anything else worth recording (model, sources, true parameters ...)
+    """
+    rec = {
+        "package": "capsule-cli",
+        "version": __version__,
+        "git_commit": git_commit(),
+        "config_hash": config_hash,
+        "seed": seed,
+        "synthetic": bool(synthetic),
+        "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]) if sys.argv else "",
+    }
+    rec.update(extra)
+    return rec
+
+
+# ---------------------------------------------------------------------------
+# schemas
+
+
+@dataclass(frozen=True)
+class Column:
+    """A table column: name (with unit suffix), dtype, unit and description."""
+
+    name: str
+    dtype: str  # "float64", "int64", "bool", "string"
+    description: str
+    unit: str | None = None  # default: from the name's suffix
+    required: bool = True
+
+    @property
+    def unit_text(self) -> str:
+        return self.unit if self.unit is not None else unit_label(self.name)
+
+
+@dataclass(frozen=True)
+class TableSchema:
+    """A declared table: its columns and what one row is."""
+
+    name: str
+    description: str
+    columns: tuple[Column, ...]
+    allow_extra: bool = False
+
+    def arrow_schema(self, df: pd.DataFrame, meta: dict) -> pa.Schema:
+        fields = []
+        known = {c.name: c for c in self.columns}
+        for name in df.columns:
+            col = known.get(name)
+            typ = pa.Schema.from_pandas(df[[name]], preserve_index=False).field(name).type
+            if col is not None:
+                typ = _ARROW[col.dtype]
+                fmeta = {"unit": col.unit_text, "description": col.description}
+            else:
+                fmeta = {"unit": unit_label(name), "description": "extra column"}
+            fields.append(pa.field(name, typ, metadata={k: str(v) for k, v in fmeta.items()}))
+        return pa.schema(fields, metadata={PROVENANCE_KEY: json.dumps(_jsonable(meta)).encode(),
+                                           b"table": self.name.encode(),
+                                           b"table_description": self.description.encode()})
+
+
+_ARROW = {"float64": pa.float64(), "int64": pa.int64(), "bool": pa.bool_(), "string": pa.string()}
+
+
+def check_frame(df: pd.DataFrame, schema: TableSchema) -> pd.DataFrame:
+    """Return ``df`` with columns in schema order and dtypes coerced; ValueError if it does not fit."""
+    missing = [c.name for c in schema.columns if c.required and c.name not in df.columns]
+    if missing:
+        raise ValueError(f"table '{schema.name}' lacks columns {missing}")
+    extra = [c for c in df.columns if c not in {k.name for k in schema.columns}]
+    if extra and not schema.allow_extra:
+        raise ValueError(f"table '{schema.name}' has undeclared columns {extra}")
+    order = [c.name for c in schema.columns if c.name in df.columns] + extra
+    out = df[order].copy()
+    for c in schema.columns:
+        if c.name in out.columns:
+            if c.dtype == "string":
+                out[c.name] = out[c.name].astype("string")
+            else:
+                out[c.name] = out[c.name].astype(c.dtype)
+    return out.reset_index(drop=True)
+
+
+def write_table(df: pd.DataFrame, path: str | os.PathLike, schema: TableSchema,
+                prov: dict | None = None) -> Path:
+    """Write ``df`` as Parquet with units and provenance, atomically; return the path."""
+    df = check_frame(df, schema)
+    meta = prov if prov is not None else provenance()
+    table = pa.Table.from_pandas(df, schema=schema.arrow_schema(df, meta), preserve_index=False)
+    with atomic_path(path) as tmp:
+        pq.write_table(table, tmp)
+    return Path(path)
+
+
+def read_table(path: str | os.PathLike) -> pd.DataFrame:
+    """Read a Parquet table written by :func:`write_table` (provenance in ``df.attrs``)."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: file not found")
+    try:
+        table = pq.read_table(p)
+    except (pa.ArrowInvalid, OSError) as exc:
+        raise InputError(f"{p}: not a readable Parquet file ({str(exc).splitlines()[0]})") from None
+    df = table.to_pandas()
+    df.attrs["provenance"] = read_provenance(p)
+    return df
+
+
+def read_provenance(path: str | os.PathLike) -> dict:
+    """Return the provenance record of a Parquet file ({} if it has none)."""
+    meta = pq.read_schema(path).metadata or {}
+    raw = meta.get(PROVENANCE_KEY)
+    return json.loads(raw) if raw else {}
+
+
+def read_column_units(path: str | os.PathLike) -> dict[str, str]:
+    """Return ``{column: unit}`` from a Parquet file's field metadata."""
+    sch = pq.read_schema(path)
+    return {f.name: (f.metadata or {}).get(b"unit", b"").decode() for f in sch}
+
+
+# ---------------------------------------------------------------------------
+# measurement tables (contract section 3)
+
+#: canonical columns: name -> (description, required-for kinds)
+LABEL_COLUMNS = {"case", "trial", "statistic", "waveform", "run", "replicate", "group", "source",
+                 "kind", "note", "label", "id"}
+
+MEASUREMENT_KINDS: dict[str, dict[str, tuple[str, ...]]] = {
+    "friction": {"required": ("speed_mm_s", "friction_mN"),
+                 "optional": ("case", "trial", "Ri_mm", "position_mm", "time_s", "bend_radius_mm")},
+    "pressure": {"required": ("speed_mm_s", "pressure_kPa"),
+                 "optional": ("case", "Ri_mm", "statistic", "bend_radius_mm", "end_length_mm",
+                              "coating_mm", "coating_modulus_kPa")},
+    "relaxation": {"required": ("time_s", "pressure_kPa"), "optional": ("trial",)},
+    "progression": {"required": ("f_Hz", "Pd_N", "velocity_mm_s"),
+                    "optional": ("duty", "waveform", "Pf_N", "run")},
+    "trajectory": {"required": ("run", "time_s", "capsule_mm"),
+                   "optional": ("magnet_mm", "f_Hz", "Pd_N", "duty", "waveform")},
+}
+
+#: columns that must be >= 0 (the message names them)
+NONNEGATIVE = {"speed": "negative speed", "f": "negative frequency", "Pd": "negative drive amplitude",
+               "Ri": "negative radius", "time": "negative time", "Pf": "negative friction level"}
+
+DIMENSIONLESS_COLUMNS = {"duty", "mu"}
+
+
+def infer_kind(columns: Iterable[str]) -> str | None:
+    """Return the measurement kind whose required columns (any unit) are all present."""
+    bases = {split_unit(c)[0] for c in columns} | set(columns)
+    for kind, spec in MEASUREMENT_KINDS.items():
+        if all(split_unit(r)[0] in bases or r in bases for r in spec["required"]):
+            return kind
+    return None
+
+
+def _fail(path, msg):
+    raise InputError(f"{path}: {msg}")
+
+
+def read_measurements(path: str | os.PathLike, kind: str | None = None) -> tuple[pd.DataFrame, str]:
+    """Return ``(table, kind)`` of a validated measurement table (CSV or Parquet).
+
+    Columns are renamed/converted to the canonical units of contract section 3
+    (``speed_m_s`` becomes ``speed_mm_s``); extra covariates must carry a known
+    unit suffix. Bad input raises :class:`InputError` with one line naming the
+    file, the column and the first offending row.
+    """
+    p = Path(path)
+    if not p.is_file():
+        _fail(p, "file not found")
+    try:
+        if p.suffix.lower() == ".csv":
+            df = pd.read_csv(p)
+        elif p.suffix.lower() in (".parquet", ".pq"):
+            df = pq.read_table(p).to_pandas()
+        else:
+            _fail(p, f"unknown table format '{p.suffix}' (use .csv or .parquet)")
+    except InputError:
+        raise
+    except pd.errors.EmptyDataError:
+        _fail(p, "empty table")
+    except (pd.errors.ParserError, pa.ArrowInvalid, OSError, UnicodeDecodeError) as exc:
+        _fail(p, f"cannot be read ({str(exc).splitlines()[0]})")
+    if df.shape[0] == 0:
+        _fail(p, "empty table (no rows)")
+    df.columns = [str(c).strip() for c in df.columns]
+    for col in df.columns:  # every non-label column must carry a known unit suffix
+        if col in LABEL_COLUMNS or col in DIMENSIONLESS_COLUMNS or split_unit(col)[1] is not None:
+            continue
+        if "_" in col:
+            _fail(p, f"column '{col}': unknown unit suffix '{col.rsplit('_', 1)[-1]}' "
+                     "(known: mm, mm_s, mN, N, kPa, s, Hz, C, ...)")
+        _fail(p, f"column '{col}': no unit suffix (name covariates like 'temperature_C', "
+                 "'position_mm'; labels: case, trial, run)")
+
+    if kind is None:
+        kind = infer_kind(df.columns)
+        if kind is None:
+            _fail(p, "cannot infer the table kind from columns "
+                     f"{list(df.columns)}; expected e.g. speed_mm_s + friction_mN (friction) or "
+                     "time_s + pressure_kPa (relaxation); or give --kind")
+    if kind not in MEASUREMENT_KINDS:
+        _fail(p, f"unknown kind '{kind}' (one of {', '.join(MEASUREMENT_KINDS)})")
+    spec = MEASUREMENT_KINDS[kind]
+    canonical = list(spec["required"]) + list(spec["optional"])
+    canon_by_base = {split_unit(c)[0]: c for c in canonical if split_unit(c)[1]}
+
+    rename, numeric = {}, []
+    for col in df.columns:
+        base, suffix = split_unit(col)
+        if col in LABEL_COLUMNS or col in canonical and suffix is None:
+            continue
+        if col in DIMENSIONLESS_COLUMNS:
+            numeric.append(col)
+            continue
+        if suffix is None:
+            tail = col.rsplit("_", 1)[-1] if "_" in col else ""
+            cand = canon_by_base.get(col.split("_")[0])
+            if cand is not None or "_" in col:
+                _fail(p, f"column '{col}': unknown unit suffix '{tail or col}' "
+                         f"(known: mm, mm_s, mN, N, kPa, s, Hz, ...)")
+            _fail(p, f"column '{col}': no unit suffix (name covariates like 'temperature_C', "
+                     "'position_mm'; labels: case, trial, run)")
+        target = canon_by_base.get(base)
+        if target is not None and target != col:
+            if dimension(target) != dimension(suffix):
+                _fail(p, f"column '{col}': unit '{UNITS[suffix][1]}' does not fit "
+                         f"'{target}' ({unit_label(target)})")
+            if target in df.columns:
+                _fail(p, f"columns '{col}' and '{target}' both given")
+            rename[col] = target
+        numeric.append(rename.get(col, col))
+    df = df.rename(columns=rename)
+    missing = [c for c in spec["required"] if c not in df.columns]
+    if missing:
+        _fail(p, f"missing column '{missing[0]}' for a {kind} table (required: "
+                 f"{', '.join(spec['required'])})")
+
+    for col in numeric:
+        raw = df[col]
+        vals = pd.to_numeric(raw, errors="coerce")
+        bad = vals.isna() & raw.notna()
+        if bad.any():
+            i = int(np.argmax(bad.to_numpy()))
+            _fail(p, f"column '{col}' row {i + 1}: non-numeric value {raw.iloc[i]!r}")
+        if vals.isna().any():
+            i = int(np.argmax(vals.isna().to_numpy()))
+            _fail(p, f"column '{col}' row {i + 1}: missing value (NaN)")
+        if not np.isfinite(vals.to_numpy(dtype=float)).all():
+            i = int(np.argmax(~np.isfinite(vals.to_numpy(dtype=float))))
+            _fail(p, f"column '{col}' row {i + 1}: infinite value")
+        base = split_unit(col)[0]
+        if base in NONNEGATIVE and (vals < 0).any():
+            i = int(np.argmax((vals < 0).to_numpy()))
+            _fail(p, f"column '{col}' row {i + 1}: {NONNEGATIVE[base]} {vals.iloc[i]}")
+        df[col] = vals.astype(float)
+    for col, target in rename.items():
+        df[target] = convert(df[target].to_numpy(), col, target)
+    if "duty" in df.columns and ((df["duty"] <= 0) | (df["duty"] >= 1)).any():
+        i = int(np.argmax(((df["duty"] <= 0) | (df["duty"] >= 1)).to_numpy()))
+        _fail(p, f"column 'duty' row {i + 1}: duty must lie in (0, 1), got {df['duty'].iloc[i]}")
+    for col in df.columns:
+        if col in LABEL_COLUMNS and df[col].isna().any():
+            i = int(np.argmax(df[col].isna().to_numpy()))
+            _fail(p, f"column '{col}' row {i + 1}: missing label")
+    df.attrs["source_path"] = str(p)
+    df.attrs["kind"] = kind
+    df.attrs["provenance"] = read_provenance(p) if p.suffix.lower() in (".parquet", ".pq") else {}
+    return df, kind
+
+
+def covariate_columns(df: pd.DataFrame, kind: str) -> list[str]:
+    """Return the numeric covariate columns of a measurement table (not the response)."""
+    response = {"friction": "friction_mN", "pressure": "pressure_kPa", "relaxation": "pressure_kPa",
+                "progression": "velocity_mm_s", "trajectory": "capsule_mm"}[kind]
+    return [c for c in df.columns if c != response and c not in LABEL_COLUMNS
+            and pd.api.types.is_numeric_dtype(df[c])]
+
+
+def response_column(kind: str) -> str:
+    """Return the measured quantity's column of a measurement kind."""
+    return {"friction": "friction_mN", "pressure": "pressure_kPa", "relaxation": "pressure_kPa",
+            "progression": "velocity_mm_s", "trajectory": "capsule_mm"}[kind]
+
+
+def write_measurements(df: pd.DataFrame, path: str | os.PathLike, prov: dict) -> Path:
+    """Write a measurement-kind table (CSV or Parquet by suffix) atomically.
+
+    Parquet keeps the provenance (and the synthetic flag) in its metadata; CSV
+    gets a sidecar ``<file>.provenance.json``.
+    """
+    p = Path(path)
+    if p.suffix.lower() == ".csv":
+        with atomic_path(p) as tmp:
+            df.to_csv(tmp, index=False)
+        write_json_atomic(p.with_name(p.name + ".provenance.json"), prov)
+        return p
+    cols = tuple(Column(c, _dtype_of(df[c]), "measurement column" if c != "synthetic" else "") for c in df.columns)
+    return write_table(df, p, TableSchema("measurements", "measurement-kind table", cols), prov)
+
+
+def _dtype_of(s: pd.Series) -> str:
+    if pd.api.types.is_bool_dtype(s):
+        return "bool"
+    if pd.api.types.is_integer_dtype(s):
+        return "int64"
+    if pd.api.types.is_float_dtype(s):
+        return "float64"
+    return "string"

@@ -1,0 +1,79 @@
+"""Tables: units and provenance in Parquet metadata, atomic writes, measurement validation."""
+from __future__ import annotations
+
+import pandas as pd
+import pytest
+
+from capsule_cli import tables
+from capsule_cli.errors import InputError
+
+SCHEMA = tables.TableSchema("demo", "one row per speed", (
+    tables.Column("speed_mm_s", "float64", "capsule speed"),
+    tables.Column("pressure_kPa", "float64", "average contact pressure"),
+))
+
+
+def test_write_table_records_units_and_provenance(tmp_path):
+    p = tmp_path / "t.parquet"
+    tables.write_table(pd.DataFrame({"speed_mm_s": [1.0, 2.0], "pressure_kPa": [3.0, 4.0]}), p, SCHEMA,
+                       tables.provenance(config_hash="abc", seed=3))
+    assert tables.read_column_units(p) == {"speed_mm_s": "mm/s", "pressure_kPa": "kPa"}
+    prov = tables.read_provenance(p)
+    assert prov["config_hash"] == "abc" and prov["seed"] == 3 and prov["synthetic"] is False
+    assert prov["version"]
+    assert tables.read_table(p)["pressure_kPa"].tolist() == [3.0, 4.0]
+
+
+def test_failed_write_leaves_no_file(tmp_path):
+    p = tmp_path / "t.parquet"
+    with pytest.raises(ValueError):
+        tables.write_table(pd.DataFrame({"speed_mm_s": [1.0]}), p, SCHEMA)  # missing column
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(RuntimeError):
+        with tables.atomic_path(p) as tmp:
+            tmp.write_text("half")
+            raise RuntimeError("boom")
+    assert list(tmp_path.iterdir()) == []
+
+
+def _write(tmp_path, text, name="m.csv"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_measurements_kind_inferred_and_units_converted(tmp_path):
+    p = _write(tmp_path, "speed_m_s,friction_N,trial\n0.001,0.0079,1\n0.002,0.0081,1\n")
+    df, kind = tables.read_measurements(p)
+    assert kind == "friction"
+    assert df["speed_mm_s"].tolist() == pytest.approx([1.0, 2.0])
+    assert df["friction_mN"].tolist() == pytest.approx([7.9, 8.1])
+
+
+@pytest.mark.parametrize("text, fragment", [
+    ("speed_mm_s,friction_mN\n1,2\n2,abc\n", "column 'friction_mN' row 2: non-numeric value 'abc'"),
+    ("speed_mm_s,friction_mN\n1,2\n-0.4,3\n", "column 'speed_mm_s' row 2: negative speed -0.4"),
+    ("speed_mm_s,friction_mN\n1,2\n2,\n", "column 'friction_mN' row 2: missing value"),
+    ("speed_mm_s,friction_mN\n", "empty table"),
+    ("speed_mm_s,friction_lbf\n1,2\n", "unknown unit suffix 'lbf'"),
+    ("time_s,pressure_kPa,temp_F\n1,2,3\n", "unknown unit suffix 'F'"),
+    ("speed_mm_s,friction_mN,position_s\n1,2,3\n", "does not fit"),
+])
+def test_bad_measurements_fail_with_one_line(tmp_path, text, fragment):
+    p = _write(tmp_path, text)
+    with pytest.raises(InputError) as exc:
+        tables.read_measurements(p)
+    msg = str(exc.value)
+    assert fragment in msg and "m.csv" in msg and "\n" not in msg
+
+
+def test_missing_required_column_named(tmp_path):
+    p = _write(tmp_path, "speed_mm_s,pressure_kPa\n1,2\n")
+    with pytest.raises(InputError, match="missing column 'friction_mN'"):
+        tables.read_measurements(p, kind="friction")
+
+
+def test_extra_covariate_with_known_unit_is_kept(tmp_path):
+    p = _write(tmp_path, "speed_mm_s,friction_mN,temperature_C\n1,2,37\n")
+    df, kind = tables.read_measurements(p)
+    assert "temperature_C" in tables.covariate_columns(df, kind)
