@@ -321,22 +321,11 @@ def read_measurements(path: str | os.PathLike, kind: str | None = None) -> tuple
 
     rename, numeric = {}, []
     for col in df.columns:
+        if col in LABEL_COLUMNS:
+            continue
         base, suffix = split_unit(col)
-        if col in LABEL_COLUMNS or col in canonical and suffix is None:
-            continue
-        if col in DIMENSIONLESS_COLUMNS:
-            numeric.append(col)
-            continue
-        if suffix is None:
-            tail = col.rsplit("_", 1)[-1] if "_" in col else ""
-            cand = canon_by_base.get(col.split("_")[0])
-            if cand is not None or "_" in col:
-                _fail(p, f"column '{col}': unknown unit suffix '{tail or col}' "
-                         f"(known: mm, mm_s, mN, N, kPa, s, Hz, ...)")
-            _fail(p, f"column '{col}': no unit suffix (name covariates like 'temperature_C', "
-                     "'position_mm'; labels: case, trial, run)")
-        target = canon_by_base.get(base)
-        if target is not None and target != col:
+        target = canon_by_base.get(base) if suffix else None
+        if target is not None and target != col:  # e.g. speed_m_s -> speed_mm_s
             if dimension(target) != dimension(suffix):
                 _fail(p, f"column '{col}': unit '{UNITS[suffix][1]}' does not fit "
                          f"'{target}' ({unit_label(target)})")
