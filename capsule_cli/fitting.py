@@ -77,7 +77,8 @@ def _starts(x0: np.ndarray, lower: np.ndarray, upper: np.ndarray, n_starts: int,
 def fit_least_squares(model: Callable[[np.ndarray], np.ndarray], y: np.ndarray, x0: Sequence[float],
                       names: Sequence[str], bounds: tuple[Sequence[float], Sequence[float]] | None = None,
                       sigma: np.ndarray | None = None, n_starts: int = 6, seed: int = 0,
-                      x_scale: Sequence[float] | str = "jac", level: float = 0.95) -> FitResult:
+                      x_scale: Sequence[float] | str = "jac", level: float = 0.95, tol: float = 1e-12,
+                      max_nfev: int | None = None) -> FitResult:
     """Return the best bounded least-squares fit of ``model(params)`` to ``y``.
 
     Parameters
@@ -90,6 +91,8 @@ def fit_least_squares(model: Callable[[np.ndarray], np.ndarray], y: np.ndarray, 
     sigma : per-point standard deviations (weights 1/sigma), optional
     n_starts : number of starting points (multi-start makes the optimum robust to the start)
     level : confidence level of the intervals
+    tol : xtol = ftol = gtol of scipy's least_squares per start
+    max_nfev : evaluation budget per start (default 2000 x number of parameters)
     """
     y = np.asarray(y, float)
     x0 = np.asarray(x0, float)
@@ -110,7 +113,8 @@ def fit_least_squares(model: Callable[[np.ndarray], np.ndarray], y: np.ndarray, 
         start = np.clip(start, lower + 1e-12 * span, upper - 1e-12 * span)
         try:
             sol = optimize.least_squares(resid, start, bounds=(lower, upper), method="trf",
-                                         x_scale=x_scale, xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=2000 * k)
+                                         x_scale=x_scale, xtol=tol, ftol=tol, gtol=tol,
+                                         max_nfev=max_nfev if max_nfev is not None else 2000 * k)
         except (ValueError, FloatingPointError):
             continue
         converged += int(sol.success)

@@ -1,12 +1,23 @@
 """Study-config section for the loop stage (see capsule_cli.config.StudyConfig)."""
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import Field
 
 from ..config_base import Strict
 
 
 class LoopStudy(Strict):
-    """Settings of the loop stage of the study; every field has units in its description."""
+    """Settings of the loop stage: one hidden-effect demo per kind plus the published-data loops."""
 
     enabled: bool = Field(default=True, description="run this stage in the study")
+    kinds: list[Literal["friction", "pressure", "relaxation"]] = Field(default_factory=lambda: ["friction", "pressure", "relaxation"],
+                             description="kinds with a synth -> compare -> diagnose -> compare -> ledger demo")
+    replicates: int = Field(default=4, ge=1, description="replicates per design row of the synthetic demos [-]")
+    folds: int = Field(default=5, ge=2, description="cross-validation folds [-]")
+    noise_sd_friction_mN: float = Field(default=1.5, ge=0, description="noise SD of the friction demo [mN]")
+    noise_sd_pressure_kPa: float = Field(default=0.2, ge=0, description="noise SD of the pressure demo [kPa]")
+    noise_sd_relaxation_kPa: float = Field(default=0.05, ge=0, description="noise SD of the relaxation demo [kPa]")
+    published: bool = Field(default=True, description="also run the loops on the published seed values "
+                                                      "(configs/data/)")

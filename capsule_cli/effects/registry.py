@@ -1,0 +1,381 @@
+"""The registry of base models and physical effects, built in and from plugins.
+
+A *base model* predicts the measured response of one measurement kind
+(contract section 3) from its covariates; an *effect* is a named, documented
+term that a model file switches on (contract section 4). Both are plain
+dataclasses holding pure functions:
+
+``predict(x, p, ctx) -> y`` (base) and ``apply(y, x, p, ctx) -> y`` (effect), where
+
+* ``x`` maps covariate *base names* (``speed``, ``position``, ``time``, ``Ri``,
+  ``bend_radius``, ``temperature``, ...) to numpy arrays in SI units ([m/s],
+  [m], [s], °C stays °C); label columns (``statistic``) come as string arrays;
+* ``p`` maps parameter base names (the declared name without its unit suffix:
+  ``a_mN`` -> ``a``) to SI values ([N], [m], [Pa] ...);
+* ``ctx`` holds the model's resolved base parameters (SI, base names, e.g.
+  ``mu``, ``mass``) and the fixed capsule/intestine constants (``Rc``, ``L``,
+  ``g`` ...) from ``configs/params``;
+* ``y`` is the response in SI ([N] for friction, [Pa] for pressure).
+
+Parameters are declared with :class:`Param` in the unit of their name's
+suffix (``a_mN`` in mN, ``relax_time_s`` in s); the suffix sets the SI factor
+(``capsule_cli.units``). A coefficient per degree Celsius takes its
+numerator's suffix (``slope_mN`` = mN per °C, since °C has factor 1).
+
+Every effect has an ``off`` value per parameter at which ``apply`` returns
+``y`` unchanged, so a model with the effect nests the model without it.
+
+Plugins
+-------
+A plugin is a Python file (``--plugins FILE.py``) or a module exposed in the
+entry-point group ``capsule_cli.effects`` that registers effects::
+
+    from capsule_cli.effects import Param, register_effect
+
+    @register_effect(
+        name="thermal_softening", kind="friction", covariates=("temperature_C",),
+        params=(Param("slope_mN", start=0.5, bounds=(-20.0, 20.0), off=0.0,
+                      description="friction change per degree Celsius"),),
+        description="Friction changes linearly with the tissue temperature.",
+        source="my lab notebook, 2024-05-02")
+    def thermal_softening(y, x, p, ctx):
+        return y + p["slope"] * (x["temperature"] - 37.0)
+
+From then on the effect is listed by ``effects list``, usable in model files
+and ``synth``, fitted by ``compare`` and tried by ``diagnose``.
+"""
+from __future__ import annotations
+
+import difflib
+import importlib.util
+import sys
+import traceback
+from dataclasses import dataclass, field
+from importlib import metadata
+from pathlib import Path
+from typing import Callable, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from ..errors import InputError
+from ..units import UNITS, split_unit, unit_label
+
+#: the quasi-static kinds this registry serves now (dynamics kinds come later)
+KINDS = ("friction", "pressure", "relaxation", "progression", "trajectory")
+
+ENTRY_POINT_GROUP = "capsule_cli.effects"
+
+
+def base_name(name: str) -> str:
+    """Return a unit-suffixed name without its suffix (``a_mN`` -> ``a``; ``mu`` -> ``mu``)."""
+    base, suffix = split_unit(name)
+    return base if suffix else name
+
+
+def si_factor(name: str) -> float:
+    """Return the factor converting a value in the unit of ``name``'s suffix to SI (1 if none)."""
+    _, suffix = split_unit(name)
+    return 1.0 if suffix is None else UNITS[suffix][0]
+
+
+@dataclass(frozen=True)
+class Param:
+    """A parameter of a base model or effect, in the unit of its name's suffix.
+
+    name : unit-suffixed name (``a_mN``, ``relax_time_s``; dimensionless: ``n``)
+    start : default value (start value of a calibration)
+    bounds : (lower, upper) used when the parameter is free
+    off : value at which the effect vanishes (the model reduces to the one without it);
+        None for base-model parameters
+    free : whether the parameter is freed when the effect is added by ``diagnose``
+    description : what it is
+    """
+
+    name: str
+    start: float
+    bounds: tuple[float, float] = (-np.inf, np.inf)
+    off: float | None = None
+    free: bool = True
+    description: str = ""
+
+    @property
+    def key(self) -> str:
+        """The SI key in ``p`` (the name without its unit suffix)."""
+        return base_name(self.name)
+
+    @property
+    def unit(self) -> str:
+        return unit_label(self.name)
+
+
+GuessFn = Callable[[np.ndarray, Mapping[str, np.ndarray], Mapping[str, float]], Mapping[str, float]]
+
+
+@dataclass(frozen=True)
+class Effect:
+    """A named physical effect a model can switch on (contract section 4).
+
+    apply(y, x, p, ctx) -> y returns the response with the effect (SI, see the module doc);
+    guess(residual, x, ctx) -> {param key: SI value}, optional, gives data-based start values
+    from the residual of the model without the effect (SI response units).
+    bases : base models the effect applies to (empty: all of its kind)
+    """
+
+    name: str
+    kind: str
+    description: str
+    source: str
+    params: tuple[Param, ...]
+    covariates: tuple[str, ...]
+    apply: Callable
+    guess: GuessFn | None = None
+    bases: tuple[str, ...] = ()
+    origin: str = "built-in"
+
+    def applicable(self, columns: Iterable[str], base: str | None = None) -> bool:
+        """Return True when every covariate the effect needs is in ``columns`` (and the base fits)."""
+        have = {base_name(c) for c in columns}
+        if self.bases and base is not None and base not in self.bases:
+            return False
+        return all(base_name(c) in have for c in self.covariates)
+
+    def n_free(self) -> int:
+        return sum(p.free for p in self.params)
+
+
+@dataclass(frozen=True)
+class BaseModel:
+    """A base model of a measurement kind (contract section 4 table).
+
+    predict(x, p, ctx) -> y (SI). ``column_params`` are parameters that a table
+    column of the same name replaces row by row (``Ri_mm``: "or the table's column").
+    """
+
+    name: str
+    kind: str
+    description: str
+    source: str
+    params: tuple[Param, ...]
+    predict: Callable
+    covariates: tuple[str, ...] = ()
+    column_params: tuple[str, ...] = ()
+    origin: str = "built-in"
+
+
+_EFFECTS: dict[tuple[str, str], Effect] = {}
+_BASES: dict[tuple[str, str], BaseModel] = {}
+_LOADED_PLUGINS: set[str] = set()
+_BUILTINS_LOADED = False
+_CURRENT_ORIGIN = ["built-in"]
+
+
+def _check_params(owner: str, params: Sequence[Param], is_effect: bool) -> None:
+    seen = set()
+    for prm in params:
+        if not isinstance(prm, Param):
+            raise ValueError(f"{owner}: parameters must be capsule_cli.effects.Param, got {type(prm).__name__}")
+        if prm.name in seen:
+            raise ValueError(f"{owner}: parameter '{prm.name}' declared twice")
+        seen.add(prm.name)
+        lo, hi = prm.bounds
+        if not lo < hi:
+            raise ValueError(f"{owner}: parameter '{prm.name}' bounds must be lower < upper, got {prm.bounds}")
+        if not (lo <= prm.start <= hi):
+            raise ValueError(f"{owner}: parameter '{prm.name}' start {prm.start} outside bounds {prm.bounds}")
+        if is_effect and prm.off is None:
+            raise ValueError(f"{owner}: parameter '{prm.name}' needs an 'off' value (where the effect vanishes)")
+
+
+def register_effect(effect: Effect | None = None, *, name: str | None = None, kind: str | None = None,
+                    params: Sequence[Param] = (), covariates: Sequence[str] = (), description: str = "",
+                    source: str = "", guess: GuessFn | None = None, bases: Sequence[str] = ()):
+    """Register an effect; use as ``register_effect(Effect(...))`` or as a decorator.
+
+    As a decorator the function is ``apply(y, x, p, ctx) -> y`` (see the module doc)::
+
+        @register_effect(name="my_effect", kind="friction", params=(Param("k_mN", 1.0, (0, 50), 0.0),),
+                         covariates=("temperature_C",), description="...", source="...")
+        def my_effect(y, x, p, ctx):
+            return y + p["k"] * (x["temperature"] - 37.0)
+
+    Raises ValueError on a bad registration (unknown kind, a parameter without
+    bounds/off, a name clash with another effect of the kind).
+    """
+    if effect is not None:
+        _add_effect(effect)
+        return effect
+
+    def deco(fn):
+        if not callable(fn):
+            raise ValueError("register_effect decorates a function apply(y, x, p, ctx)")
+        eff = Effect(name=name or fn.__name__, kind=kind or "", description=description or (fn.__doc__ or "").strip(),
+                     source=source or "user plugin", params=tuple(params), covariates=tuple(covariates),
+                     apply=fn, guess=guess, bases=tuple(bases), origin=_CURRENT_ORIGIN[-1])
+        _add_effect(eff)
+        return fn
+
+    return deco
+
+
+def _add_effect(eff: Effect) -> None:
+    if eff.kind not in KINDS:
+        raise ValueError(f"effect '{eff.name}': unknown kind '{eff.kind}' (one of {', '.join(KINDS)})")
+    if not eff.name or not eff.name.replace("_", "").isalnum():
+        raise ValueError(f"effect name '{eff.name}' must be a word (letters, digits, underscores)")
+    if not callable(eff.apply):
+        raise ValueError(f"effect '{eff.name}': apply must be callable")
+    if eff.origin == "built-in" and _CURRENT_ORIGIN[-1] != "built-in":
+        eff = Effect(**{**eff.__dict__, "origin": _CURRENT_ORIGIN[-1]})
+    _check_params(f"effect '{eff.name}'", eff.params, True)
+    for cov in eff.covariates:
+        if split_unit(cov)[1] is None:
+            raise ValueError(f"effect '{eff.name}': covariate '{cov}' needs a unit suffix (e.g. 'temperature_C')")
+    key = (eff.kind, eff.name)
+    old = _EFFECTS.get(key)
+    if old is not None and old.origin != eff.origin:
+        raise ValueError(f"effect '{eff.name}' ({eff.kind}) is already registered by {old.origin}")
+    _EFFECTS[key] = eff
+
+
+def register_base(model: BaseModel) -> BaseModel:
+    """Register a base model of a kind (built-ins; plugins may add bases the same way)."""
+    if model.kind not in KINDS:
+        raise ValueError(f"base model '{model.name}': unknown kind '{model.kind}'")
+    _check_params(f"base model '{model.name}'", model.params, False)
+    _BASES[(model.kind, model.name)] = model
+    return model
+
+
+def _ensure_builtins() -> None:
+    global _BUILTINS_LOADED
+    if _BUILTINS_LOADED:
+        return
+    _BUILTINS_LOADED = True
+    from . import friction, pressure, relaxation  # noqa: F401  (register on import)
+
+
+def effects(kind: str | None = None) -> list[Effect]:
+    """Return the registered effects (of one kind), built-ins first, then plugins, by name."""
+    _ensure_builtins()
+    out = [e for e in _EFFECTS.values() if kind is None or e.kind == kind]
+    return sorted(out, key=lambda e: (KINDS.index(e.kind), e.origin != "built-in", e.name))
+
+
+def bases(kind: str | None = None) -> list[BaseModel]:
+    """Return the registered base models (of one kind)."""
+    _ensure_builtins()
+    return [b for b in _BASES.values() if kind is None or b.kind == kind]
+
+
+def get_effect(kind: str, name: str, where: str = "") -> Effect:
+    """Return the effect ``name`` of ``kind``; InputError with a suggestion when unknown."""
+    _ensure_builtins()
+    eff = _EFFECTS.get((kind, name))
+    if eff is None:
+        names = [e.name for e in effects(kind)]
+        other = [k for (k, n) in _EFFECTS if n == name]
+        hint = difflib.get_close_matches(name, names, n=1)
+        msg = f"{where}unknown {kind} effect '{name}'"
+        if other:
+            msg += f" (it is a {other[0]} effect)"
+        elif hint:
+            msg += f" (did you mean '{hint[0]}'?)"
+        else:
+            msg += f" (known: {', '.join(names) or 'none'}; a plugin may add it with --plugins FILE.py)"
+        raise InputError(msg)
+    return eff
+
+
+def get_base(kind: str, name: str, where: str = "") -> BaseModel:
+    """Return the base model ``name`` of ``kind``; InputError with a suggestion when unknown."""
+    _ensure_builtins()
+    model = _BASES.get((kind, name))
+    if model is None:
+        names = [b.name for b in bases(kind)]
+        hint = difflib.get_close_matches(name, names, n=1)
+        if not names:
+            raise InputError(f"{where}no base model of kind '{kind}' is available yet (the loop covers "
+                             "friction, pressure and relaxation)")
+        raise InputError(f"{where}unknown {kind} base model '{name}'"
+                         + (f" (did you mean '{hint[0]}'?)" if hint else f" (known: {', '.join(names)})"))
+    return model
+
+
+# ---------------------------------------------------------------------------
+# plugins
+
+
+def _load_file(path: Path) -> None:
+    mod_name = f"capsule_cli_plugin_{abs(hash(str(path.resolve())))}"
+    spec = importlib.util.spec_from_file_location(mod_name, path)
+    if spec is None or spec.loader is None:
+        raise InputError(f"{path}: cannot be loaded as a Python plugin (use a .py file)")
+    module = importlib.util.module_from_spec(spec)
+    before = dict(_EFFECTS)
+    _CURRENT_ORIGIN.append(f"plugin {path.name}")
+    try:
+        sys.modules[mod_name] = module
+        spec.loader.exec_module(module)
+    except SyntaxError as exc:
+        _rollback(before)
+        raise InputError(f"{path}: line {exc.lineno}: syntax error: {exc.msg}") from None
+    except InputError as exc:
+        _rollback(before)
+        raise InputError(f"{path}: {exc}") from None
+    except Exception as exc:  # noqa: BLE001  (a plugin error is the user's input, exit 2)
+        _rollback(before)
+        tb = traceback.extract_tb(exc.__traceback__)
+        line = next((f.lineno for f in reversed(tb) if Path(f.filename) == path), None)
+        where = f" line {line}" if line else ""
+        raise InputError(f"{path}:{where}: plugin failed: {type(exc).__name__}: {exc}") from None
+    finally:
+        _CURRENT_ORIGIN.pop()
+    if len(_EFFECTS) == len(before) and all(_EFFECTS[k] is before[k] for k in before):
+        raise InputError(f"{path}: the plugin registers no effect (use capsule_cli.effects.register_effect)")
+
+
+def _rollback(before: dict) -> None:
+    _EFFECTS.clear()
+    _EFFECTS.update(before)
+
+
+def load_plugins(paths: Iterable[str | Path] | None = None, entry_points: bool = True) -> list[str]:
+    """Load plugin files and the ``capsule_cli.effects`` entry points; return what was loaded.
+
+    A file is loaded once per process. Errors (file missing, syntax, a bad
+    registration) raise :class:`InputError` with one line naming the file.
+    """
+    _ensure_builtins()
+    loaded = []
+    for raw in paths or ():
+        path = Path(raw)
+        if not path.is_file():
+            raise InputError(f"{path}: plugin file not found")
+        if path.suffix != ".py":
+            raise InputError(f"{path}: a plugin must be a Python file (.py)")
+        key = str(path.resolve())
+        if key in _LOADED_PLUGINS:
+            continue
+        _load_file(path)
+        _LOADED_PLUGINS.add(key)
+        loaded.append(str(path))
+    if entry_points:
+        for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
+            key = f"entry-point {ep.name}={ep.value}"
+            if key in _LOADED_PLUGINS:
+                continue
+            before = dict(_EFFECTS)
+            _CURRENT_ORIGIN.append(f"entry point {ep.name}")
+            try:
+                obj = ep.load()
+                if callable(obj):
+                    obj()
+            except Exception as exc:  # noqa: BLE001
+                _rollback(before)
+                raise InputError(f"entry point '{ep.name}' ({ep.value}) of group {ENTRY_POINT_GROUP}: "
+                                 f"{type(exc).__name__}: {exc}") from None
+            finally:
+                _CURRENT_ORIGIN.pop()
+            _LOADED_PLUGINS.add(key)
+            loaded.append(key)
+    return loaded

@@ -1,0 +1,1 @@
+"""Steps: compose the models over tables (sweeps, fits, predictions, comparisons)."""

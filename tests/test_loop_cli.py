@@ -1,0 +1,55 @@
+"""The README's worked example end to end through the real console entry point, and bad model files."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from capsule_cli.tables import read_table
+
+
+def test_worked_example_error_falls_to_noise(tmp_path, cli):
+    d, led = tmp_path / "case1_synthetic.csv", tmp_path / "ledger.parquet"
+    steps = [
+        ["synth", "--model", "configs/models/friction_coulomb_eq17_truth.yaml", "--noise-sd", "1.5", "--replicates", "4",
+         "--seed", "1", "--out", d],
+        ["compare", "--model", "configs/models/coulomb.yaml", "--data", d, "--out", tmp_path / "cmp0",
+         "--ledger", led],
+        ["diagnose", "--model", "configs/models/coulomb.yaml", "--data", d, "--out", tmp_path / "diag",
+         "--write-model", tmp_path / "coulomb_plus.yaml"],
+        ["compare", "--model", tmp_path / "coulomb_plus.yaml", "--data", d, "--out", tmp_path / "cmp1",
+         "--ledger", led],
+        ["ledger", "plot", "--ledger", led, "--out", tmp_path / "ledger.png"],
+    ]
+    for args in steps:
+        r = cli(*args, "--quiet") if args[0] != "ledger" else cli(*args)
+        assert r.returncode == 0, r.stderr
+    diag = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
+    assert diag["verdict"]["missing_effect"] == "speed_power_law"
+    led_df = read_table(led)
+    assert list(led_df["effects"]) == ["", "speed_power_law"]
+    assert led_df["cv_rmse"].iloc[1] < 0.5 * led_df["cv_rmse"].iloc[0]
+    assert led_df["cv_rmse"].iloc[1] <= 1.2 * 1.5
+    assert (tmp_path / "ledger.png").stat().st_size > 1000
+    show = cli("ledger", "show", "--ledger", led)
+    assert show.returncode == 0 and "speed_power_law" in show.stdout
+
+
+@pytest.mark.parametrize("text, what", [
+    ("kind: friction\nbase: coulomb\neffects: [viscus]\n", "did you mean 'viscous'"),
+    ("kind: friction\nbase: coulomb\nparams:\n  mu: {value: 0.2, fre: true}\n", "unknown key 'fre'"),
+    ("kind: friction\nbase: coulomb\nparams:\n  a_mN: 3\n", "params.a_mN"),
+    ("kind: frictions\nbase: coulomb\n", "kind"),
+    ("kind: friction\nbase: [coulomb\n", "invalid YAML"),
+])
+def test_bad_model_files_exit_2_with_one_line(tmp_path, capsys, text, what):
+    from capsule_cli.cli import main
+
+    m = tmp_path / "bad_model.yaml"
+    m.write_text(text)
+    code = main(["compare", "--model", str(m), "--data", "configs/data/seed000_case1_friction.csv", "--out",
+                 str(tmp_path / "o"), "--ledger", str(tmp_path / "l.parquet")])
+    assert code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "bad_model.yaml" in err and what in err, err
+    assert not (tmp_path / "o").exists()
