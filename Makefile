@@ -6,6 +6,8 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 CORES ?= 2
+# the rules call capsule-cli: the venv's bin comes first on PATH
+export PATH := $(CURDIR)/$(BIN):$(PATH)
 
 .PHONY: study test setup smoke clean-results
 
