@@ -368,8 +368,26 @@ def read_measurements(path: str | os.PathLike, kind: str | None = None) -> tuple
             _fail(p, f"column '{col}' row {i + 1}: missing label")
     df.attrs["source_path"] = str(p)
     df.attrs["kind"] = kind
-    df.attrs["provenance"] = read_provenance(p) if p.suffix.lower() in (".parquet", ".pq") else {}
+    df.attrs["provenance"] = _measurement_provenance(p)
     return df, kind
+
+
+def _measurement_provenance(p: Path) -> dict:
+    """Return a measurement table's provenance: Parquet metadata, or a CSV's ``.provenance.json`` sidecar."""
+    if p.suffix.lower() in (".parquet", ".pq"):
+        return read_provenance(p)
+    side = p.with_name(p.name + ".provenance.json")
+    if side.is_file():
+        try:
+            return json.loads(side.read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError):
+            return {}
+    return {}
+
+
+def is_synthetic(df: pd.DataFrame) -> bool:
+    """Return True when a measurement table read by :func:`read_measurements` was made by ``synth``."""
+    return bool(df.attrs.get("provenance", {}).get("synthetic"))
 
 
 def covariate_columns(df: pd.DataFrame, kind: str) -> list[str]:

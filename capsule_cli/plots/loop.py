@@ -20,13 +20,18 @@ def _cols(resp: str):
     return f"observed_{base}_{u}", f"predicted_{base}_{u}", f"residual_{base}_{u}"
 
 
+def data_label(synthetic: bool) -> str:
+    """Return the legend label of measured points ('synthetic data' for tables made by synth)."""
+    return "synthetic data" if synthetic else "data"
+
+
 def plot_fit(res: pd.DataFrame, curves: pd.DataFrame, main: str, resp: str, path: str | Path,
              title: str = "", noise_sd: float | None = None, extra: pd.DataFrame | None = None,
-             extra_label: str = "") -> Path:
+             extra_label: str = "", data_label: str = "data") -> Path:
     """Draw data and the calibrated model with its 95 % confidence band against ``main``."""
     obs, pred, _ = _cols(resp)
     fig, ax = figure(height_in=2.8)
-    ax.plot(res[main], res[obs], "o", ms=3, mfc="none", color="0.25", alpha=0.8, label="data")
+    ax.plot(res[main], res[obs], "o", ms=3, mfc="none", color="0.25", alpha=0.8, label=data_label)
     for i, (cid, c) in enumerate(curves.groupby("curve_id", sort=True)):
         col = OKABE_ITO[i % len(OKABE_ITO)]
         lab = str(c["curve"].iloc[0])

@@ -18,7 +18,7 @@ import pandas as pd
 
 from ..effects.model import BoundModel, Model
 from ..fitting import FitResult, fit_least_squares, information_criteria, prediction_band
-from ..tables import (Column, TableSchema, provenance, response_column, write_json_atomic, write_table)
+from ..tables import (Column, TableSchema, is_synthetic, provenance, response_column, write_json_atomic, write_table)
 from ..units import split_unit, unit_label
 from . import crossval
 from .residual_tests import noise_estimate, numeric_covariates
@@ -246,7 +246,8 @@ def run_compare(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_d
     noise = noise_estimate(df, resp)
     dh = data_hash(data_path)
     met = metrics(ev, noise, data_path, dh, k_folds, how)
-    prov = provenance(config_hash=model.hash, seed=seed, synthetic=bool(df.attrs.get("provenance", {}).get("synthetic")),
+    # derived tables are not synthetic data themselves: they record that their input was
+    prov = provenance(config_hash=model.hash, seed=seed, data_synthetic=is_synthetic(df),
                       model=model.content, data=str(data_path), data_hash=dh)
     res = residual_frame(ev)
     main = main_covariate(df, kind)
@@ -257,7 +258,7 @@ def run_compare(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_d
     covs = numeric_covariates(df, resp)
     met["figures"] = []
     if figures:
-        _figures(res, curves, main, resp, out, model, data_path, noise, covs)
+        _figures(res, curves, main, resp, out, model, data_path, noise, covs, is_synthetic(df))
         met["figures"] = ["fit.png", "residuals.png"]
     write_json_atomic(out / "metrics.json", met)
     if ledger is not None:
@@ -265,10 +266,10 @@ def run_compare(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_d
     return met
 
 
-def _figures(res, curves, main, resp, out, model, data_path, noise, covs):
+def _figures(res, curves, main, resp, out, model, data_path, noise, covs, synthetic=False):
     from ..plots import loop as plots
 
     plots.plot_fit(res, curves, main, resp, out / "fit.png", title=f"{model.name} vs {Path(data_path).name}",
-                   noise_sd=noise["sd"])
+                   noise_sd=noise["sd"], data_label=plots.data_label(synthetic))
     plots.plot_residuals(res, covs, resp, out / "residuals.png", noise_sd=noise["sd"],
                          title=f"{model.name}: residuals")

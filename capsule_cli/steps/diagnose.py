@@ -39,7 +39,7 @@ import yaml
 from ..effects.model import Model
 from ..effects.registry import Effect, base_name, effects as all_effects, si_factor
 from ..errors import InputError
-from ..tables import (Column, TableSchema, provenance, response_column, write_json_atomic, write_table,
+from ..tables import (Column, TableSchema, is_synthetic, provenance, response_column, write_json_atomic, write_table,
                       write_text_atomic)
 from ..units import split_unit, unit_label
 from . import crossval
@@ -293,7 +293,7 @@ def run_diagnose(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_
 
     # tables and figures
     out.mkdir(parents=True, exist_ok=True)
-    prov = provenance(config_hash=model.hash, seed=seed, model=model.content, data=str(data_path), data_hash=dh)
+    prov = provenance(config_hash=model.hash, seed=seed, data_synthetic=is_synthetic(df), model=model.content, data=str(data_path), data_hash=dh)
     res = residual_frame(base)
     write_table(res, out / "residuals.parquet", residual_schema(res), prov)
     figs = []
@@ -316,6 +316,7 @@ def run_diagnose(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_
         write_table(curves, out / "best_candidate_curve.parquet", CURVE_SCHEMA, {**prov, "covariate": main})
         plots.plot_fit(cres, curves, main, resp, out / "best_candidate.png",
                        title=f"{model.name} + {shown.effect.name}", extra=bcurves,
+                       data_label=plots.data_label(is_synthetic(df)),
                        extra_label=f"{model.name} (as is)")
         figs.append("best_candidate.png")
     result["figures"] = figs
