@@ -1,0 +1,1151 @@
+"""Event-driven, closed-form engine of the vibro-impact capsule (numba-compiled).
+
+Model (seed 000 eqs 19-21; seed 001 Appendix A; physics.md section 3), forward +x,
+``x_r = X_m - X_c``::
+
+    M_m X_m'' = F_e - F_i,   M_c X_c'' = F_f + F_i,
+    F_i = K x_r + C v_r + F_0      (K, C, F_0 depend on the contact state)
+
+with no contact ``K = k, C = c, F_0 = 0``; front contact (x_r >= G_1)
+``K = k + k_1, C = c + c_1, F_0 = -k_1 G_1``; back contact (x_r <= -G_2)
+``K = k + k_b, C = c + c_b, F_0 = k_b G_2``.
+
+Why every mode is closed form
+-----------------------------
+* shell stuck (V_c = 0): ``M_m x_r'' = F_e - F_i`` -- a damped linear oscillator;
+* shell slipping with a constant friction level L (Coulomb, or a speed law held
+  constant below V_min): the relative motion is the oscillator of the reduced
+  mass ``mu = M_m M_c / (M_m + M_c)``,
+  ``x_r'' = F_e/M_m - F_i/mu + s L / M_c`` (s = slip direction),
+  and the centre of mass obeys ``(M_m + M_c) X_cm'' = F_e - s L`` (an explicit
+  quadrature); ``X_c = X_cm - M_m/(M_m+M_c) x_r``.
+
+So in every linear mode each state component and every event function is a
+linear combination of the seven basis functions of the segment time tau::
+
+    B = [e^{sig tau} C(tau), e^{sig tau} S(tau), cos(Om s), sin(Om s), 1, tau, tau^2]
+
+(``s = s0 + tau`` is the time since the period's start; C, S are cos/sin,
+cosh/sinh or 1/tau by the sign of the discriminant). Derivatives are the same
+basis with a linear map of the coefficients, so events, their extrema (grazing)
+and extrema of F_i are located by bracketing on a grid of 1/NPER of the fastest
+modal period plus Newton-bisection to ~1e-16 s on the exact expressions.
+
+Slip with a speed-dependent law above V_min (eqs 22-23) is the only nonlinear
+mode: a compiled Dormand-Prince 5(4) with dense output integrates that segment
+alone, with the same events.
+
+Time is kept as (period index, time within the period) so that the phase of the
+drive and the Poincare section at phase 0 are exact for any run length.
+
+Status codes returned by :func:`run_core`: see ``STATUS_*``.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+# ---------------------------------------------------------------------------
+# parameter vector (SI), built by capsule_cli.dynamics.model.pack_params
+I_MM, I_MC, I_K, I_C, I_G1, I_K1, I_C1, I_G2, I_KB, I_CB, I_BACK = range(11)
+I_PD, I_F, I_WAVE, I_DUTY = 11, 12, 13, 14
+I_PB, I_L0, I_VMIN, I_LA, I_LN, I_LB, I_LAW = 15, 16, 17, 18, 19, 20, 21
+I_XS, I_VS, I_FS = 22, 23, 24
+N_PARAMS = 25
+
+# options vector
+O_NPER, O_ENERGY, O_RTOL, O_ZENO, O_MAXSTEPS = 0, 1, 2, 3, 4
+N_OPTS = 5
+
+# shell states
+STICK, SLIP_POS, SLIP_NEG, FAST_POS, FAST_NEG = 0, 1, 2, 3, 4
+
+# event codes (root events inside a mode)
+EV_NONE = -1
+EV_FRONT_ON, EV_BACK_ON, EV_FRONT_OFF, EV_BACK_OFF = 1, 2, 3, 4
+EV_BREAK_POS, EV_BREAK_NEG, EV_SLIP_END, EV_FAST_ON, EV_FAST_OFF = 5, 6, 7, 8, 9
+# recorded kinds (the event list)
+K_FRONT_ON, K_FRONT_OFF, K_BACK_ON, K_BACK_OFF = 1, 2, 3, 4
+K_STICK, K_SLIP_FWD, K_SLIP_BWD, K_DRIVE_ON, K_DRIVE_OFF = 5, 6, 7, 8, 9
+EVENT_KIND_NAMES = {1: "front_contact_on", 2: "front_contact_off", 3: "back_contact_on",
+                    4: "back_contact_off", 5: "stick", 6: "slip_forward", 7: "slip_backward",
+                    8: "drive_on", 9: "drive_off"}
+
+STATUS_OK, STATUS_ZENO, STATUS_ILLPOSED, STATUS_RKFAIL, STATUS_EVCAP = 0, 1, 2, 3, 4
+
+# sample columns
+S_T, S_XM, S_XC, S_VM, S_VC, S_XR, S_CONTACT, S_STICK, S_FI = range(9)
+N_SAMPLE_COLS = 9
+# period columns
+P_DISP, P_NFRONT, P_NBACK, P_MAXF, P_XR0, P_VR0, P_STICK, P_XC0, P_TMAXF, P_NSTICK, P_VM0, P_VC0 = range(12)
+N_PERIOD_COLS = 12
+# energy entries
+E_DRIVE, E_DAMP, E_CONTACT, E_FRIC, E_START, E_END = range(6)
+
+NB = 7
+DEBUG = False
+TWO_PI = 2.0 * math.pi
+EPS = 2.220446049250313e-16
+
+# Gauss-Legendre 5 points on [-1, 1]
+GL_X = np.array([-0.9061798459386640, -0.5384693101056831, 0.0, 0.5384693101056831, 0.9061798459386640])
+GL_W = np.array([0.2369268850561891, 0.4786286704993665, 0.5688888888888889, 0.4786286704993665,
+                 0.2369268850561891])
+
+
+# ---------------------------------------------------------------------------
+# small helpers
+
+
+@njit(cache=True)
+def contact_terms(p, contact):
+    """Return (K, C, F0) of F_i = K x_r + C v_r + F0 in a contact state (eq 20; seed 001 App. A)."""
+    K = p[I_K]
+    C = p[I_C]
+    F0 = 0.0
+    if contact == 1:
+        K += p[I_K1]
+        C += p[I_C1]
+        F0 = -p[I_K1] * p[I_G1]
+    elif contact == 2:
+        K += p[I_KB]
+        C += p[I_CB]
+        F0 = p[I_KB] * p[I_G2]
+    return K, C, F0
+
+
+@njit(cache=True)
+def contact_of(p, xr):
+    """Return the contact state of a relative displacement (0 none, 1 front, 2 back)."""
+    if xr >= p[I_G1]:
+        return 1
+    if p[I_BACK] > 0.5 and xr <= -p[I_G2]:
+        return 2
+    return 0
+
+
+@njit(cache=True)
+def kinetic_level(p, V):
+    """Return the kinetic friction level [N] at slip speed |V| [m/s] (eqs 21-23, regularised)."""
+    if p[I_LAW] < 0.5 or V < p[I_VMIN]:
+        return p[I_L0]
+    return p[I_LA] * V ** p[I_LN] + p[I_LB]
+
+
+@njit(cache=True)
+def drive_force(p, s, fe_level):
+    """Return F_e at time s within the period (harmonic) or the square-wave level."""
+    if p[I_WAVE] < 0.5:
+        return p[I_PD] * math.cos(TWO_PI * p[I_F] * s)
+    return fe_level
+
+
+@njit(cache=True)
+def stored_energy(p, xr, vr, Vc):
+    """Return kinetic + spring + contact-spring energy [J]."""
+    Vm = Vc + vr
+    E = 0.5 * p[I_MM] * Vm * Vm + 0.5 * p[I_MC] * Vc * Vc + 0.5 * p[I_K] * xr * xr
+    if xr > p[I_G1]:
+        d = xr - p[I_G1]
+        E += 0.5 * p[I_K1] * d * d
+    if p[I_BACK] > 0.5 and xr < -p[I_G2]:
+        d = xr + p[I_G2]
+        E += 0.5 * p[I_KB] * d * d
+    return E
+
+
+@njit(cache=True)
+def decide_shell(p, contact, xr, vr, fe):
+    """Return the shell state at V_c = 0 by the set-valued law (eqs 21-23).
+
+    Sticks while |F_i| < P_break; slips in the direction of F_i when |F_i| > P_break;
+    at the threshold, sticks when F_i is moving back inside. Returns -1 when the
+    shell cannot stick and cannot slip either (breakaway below the kinetic level at
+    0+: the literal eq 22, a Zeno stick-slip loop).
+    """
+    Pb = p[I_PB]
+    if Pb == np.inf:
+        return STICK
+    K, C, F0 = contact_terms(p, contact)
+    F = K * xr + C * vr + F0
+    tol = 1e-12 * p[I_FS]
+    aF = abs(F)
+    if aF < Pb - tol:
+        return STICK
+    sgn = 1.0 if F > 0.0 else -1.0
+    if aF <= Pb + tol:
+        ar = (fe - F) / p[I_MM]
+        Fdot = K * vr + C * ar
+        if F * Fdot <= 0.0:
+            return STICK
+    L0 = p[I_L0]
+    if p[I_LAW] > 0.5 and p[I_VMIN] <= 0.0:
+        L0 = p[I_LB]
+    if aF - L0 < -tol:
+        return -1
+    fast = p[I_LAW] > 0.5 and p[I_VMIN] <= 0.0
+    if sgn > 0:
+        return FAST_POS if fast else SLIP_POS
+    return FAST_NEG if fast else SLIP_NEG
+
+
+# ---------------------------------------------------------------------------
+# closed-form segments
+
+
+@njit(cache=True)
+def basis(tau, s0, sig, disc, w, Om, B):
+    """Fill B with the seven basis functions at segment time tau."""
+    e = math.exp(sig * tau)
+    if disc < 0.0:
+        C = math.cos(w * tau)
+        S = math.sin(w * tau) / w
+    elif disc > 0.0:
+        C = math.cosh(w * tau)
+        S = math.sinh(w * tau) / w
+    else:
+        C = 1.0
+        S = tau
+    B[0] = e * C
+    B[1] = e * S
+    ph = Om * (s0 + tau)
+    B[2] = math.cos(ph)
+    B[3] = math.sin(ph)
+    B[4] = 1.0
+    B[5] = tau
+    B[6] = tau * tau
+
+
+@njit(cache=True)
+def dot7(c, B):
+    return c[0] * B[0] + c[1] * B[1] + c[2] * B[2] + c[3] * B[3] + c[4] * B[4] + c[5] * B[5] + c[6] * B[6]
+
+
+@njit(cache=True)
+def deriv_coefs(c, sig, disc, Om, out):
+    """Coefficients of d/dtau of a basis combination."""
+    out[0] = sig * c[0] + c[1]
+    out[1] = disc * c[0] + sig * c[1]
+    out[2] = Om * c[3]
+    out[3] = -Om * c[2]
+    out[4] = c[5]
+    out[5] = 2.0 * c[6]
+    out[6] = 0.0
+
+
+@njit(cache=True)
+def setup_linear(p, contact, shell, s0, xr0, vr0, Xc0, Vc0, fe_level, coef):
+    """Fill coef rows (x_r, v_r, X_c, V_c) of a linear mode; return (sig, disc, w, wmax, Om).
+
+    ``shell`` is STICK, SLIP_POS or SLIP_NEG (constant friction level p[I_L0]).
+    """
+    Mm = p[I_MM]
+    Mc = p[I_MC]
+    Mt = Mm + Mc
+    mu = Mm * Mc / Mt
+    K, C, F0 = contact_terms(p, contact)
+    harmonic = p[I_WAVE] < 0.5
+    Om = TWO_PI * p[I_F] if harmonic else 0.0
+    sgn = 0.0
+    if shell == STICK:
+        me = Mm
+        q0 = -F0 / Mm
+    else:
+        sgn = 1.0 if shell == SLIP_POS else -1.0
+        me = mu
+        q0 = -F0 / mu + sgn * p[I_L0] / Mc
+    w02 = K / me
+    gam = C / me
+    sig = -0.5 * gam
+    disc = sig * sig - w02
+    w = math.sqrt(abs(disc))
+    if harmonic:
+        dr = w02 - Om * Om
+        di = Om * gam
+        den = dr * dr + di * di
+        amp = p[I_PD] / Mm
+        Zr = amp * dr / den
+        Zi = -amp * di / den
+        xc = q0 / w02
+        c2 = math.cos(Om * s0)
+        s2 = math.sin(Om * s0)
+    else:
+        Zr = 0.0
+        Zi = 0.0
+        xc = (q0 + fe_level / Mm) / w02
+        c2 = 1.0
+        s2 = 0.0
+    xp0 = Zr * c2 - Zi * s2 + xc
+    vp0 = -Om * Zr * s2 - Om * Zi * c2
+    d0 = xr0 - xp0
+    d1 = vr0 - vp0
+    for i in range(4):
+        for j in range(NB):
+            coef[i, j] = 0.0
+    coef[0, 0] = d0
+    coef[0, 1] = d1 - sig * d0
+    coef[0, 2] = Zr
+    coef[0, 3] = -Zi
+    coef[0, 4] = xc
+    coef[1, 0] = d1
+    coef[1, 1] = -w02 * d0 + sig * d1
+    coef[1, 2] = -Om * Zi
+    coef[1, 3] = -Om * Zr
+    if shell == STICK:
+        coef[2, 4] = Xc0
+    else:
+        Ff = -sgn * p[I_L0]
+        r = Mm / Mt
+        Vcm0 = Vc0 + r * vr0
+        Xcm0 = Xc0 + r * xr0
+        if harmonic:
+            a = p[I_PD] / (Mt * Om)
+            # V_cm
+            coef[3, 3] = a
+            coef[3, 4] = Vcm0 - a * s2
+            coef[3, 5] = Ff / Mt
+            # X_cm
+            coef[2, 2] = -a / Om
+            coef[2, 4] = Xcm0 + a * c2 / Om
+            coef[2, 5] = Vcm0 - a * s2
+            coef[2, 6] = 0.5 * Ff / Mt
+        else:
+            acc = (Ff + fe_level) / Mt
+            coef[3, 4] = Vcm0
+            coef[3, 5] = acc
+            coef[2, 4] = Xcm0
+            coef[2, 5] = Vcm0
+            coef[2, 6] = 0.5 * acc
+        for j in range(NB):
+            coef[2, j] -= r * coef[0, j]
+            coef[3, j] -= r * coef[1, j]
+    wmax = math.sqrt(w02)
+    if disc > 0.0:
+        wmax = max(wmax, abs(sig) + w)
+    wmax = max(wmax, Om)
+    return sig, disc, w, wmax, Om
+
+
+@njit(cache=True)
+def refine_root(c, dc, a, b, s0, sig, disc, w, Om, B):
+    """Return the first tau in (a, b] just past the root of g = c.B, given g(a) >= 0 > g(b).
+
+    Safeguarded Newton-bisection on the closed form; the returned point lies on the
+    'outside' (g < 0) side within a few ulp of the root.
+    """
+    basis(a, s0, sig, disc, w, Om, B)
+    ga = dot7(c, B)
+    if ga < 0.0:
+        return a
+    basis(b, s0, sig, disc, w, Om, B)
+    gb = dot7(c, B)
+    x = b
+    if gb != ga:
+        x = a + (b - a) * ga / (ga - gb)
+    if not (a < x < b):
+        x = 0.5 * (a + b)
+    for _ in range(100):
+        tolx = 4.0 * EPS * (abs(s0) + abs(b)) + 1e-300
+        if b - a <= tolx:
+            break
+        basis(x, s0, sig, disc, w, Om, B)
+        g = dot7(c, B)
+        dg = dot7(dc, B)
+        if g >= 0.0:
+            a = x
+        else:
+            b = x
+        if dg != 0.0:
+            xn = x - g / dg
+            step = abs(xn - x)
+            if step < tolx and g >= 0.0:
+                # close the bracket from the inside: test a point just past the root
+                xo = x + 2.0 * tolx
+                if xo < b:
+                    basis(xo, s0, sig, disc, w, Om, B)
+                    if dot7(c, B) < 0.0:
+                        b = xo
+                        break
+            if not (a < xn < b):
+                xn = 0.5 * (a + b)
+        else:
+            xn = 0.5 * (a + b)
+        x = xn
+    return b
+
+
+@njit(cache=True)
+def gl_energy(p, coef, contact, shell, s0, tau1, h, sig, disc, w, Om, fe_level, B, acc):
+    """Add drive work and viscous dissipation over [0, tau1] of a linear segment (Gauss-Legendre)."""
+    if tau1 <= 0.0:
+        return
+    K, C, F0 = contact_terms(p, contact)
+    cs = p[I_C]
+    cc = C - cs
+    npieces = int(math.ceil(tau1 / h))
+    if npieces < 1:
+        npieces = 1
+    dt = tau1 / npieces
+    for k in range(npieces):
+        a = k * dt
+        for q in range(5):
+            t = a + 0.5 * dt * (GL_X[q] + 1.0)
+            basis(t, s0, sig, disc, w, Om, B)
+            vr = dot7(coef[1], B)
+            Vc = dot7(coef[3], B)
+            fe = drive_force(p, s0 + t, fe_level)
+            wq = 0.5 * dt * GL_W[q]
+            acc[E_DRIVE] += wq * fe * (Vc + vr)
+            acc[E_DAMP] += wq * cs * vr * vr
+            acc[E_CONTACT] += wq * cc * vr * vr
+
+
+# ---------------------------------------------------------------------------
+# Dormand-Prince 5(4) for slip with a speed-dependent law (eqs 22-23 above V_min)
+
+A21 = 1.0 / 5.0
+A31, A32 = 3.0 / 40.0, 9.0 / 40.0
+A41, A42, A43 = 44.0 / 45.0, -56.0 / 15.0, 32.0 / 9.0
+A51, A52, A53, A54 = 19372.0 / 6561.0, -25360.0 / 2187.0, 64448.0 / 6561.0, -212.0 / 729.0
+A61, A62, A63, A64, A65 = 9017.0 / 3168.0, -355.0 / 33.0, 46732.0 / 5247.0, 49.0 / 176.0, -5103.0 / 18656.0
+B1, B3, B4, B5, B6 = 35.0 / 384.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0, 11.0 / 84.0
+C2, C3, C4, C5 = 0.2, 0.3, 0.8, 8.0 / 9.0
+E1, E3, E4, E5, E6, E7 = (71.0 / 57600.0, -71.0 / 16695.0, 71.0 / 1920.0, -17253.0 / 339200.0,
+                          22.0 / 525.0, -1.0 / 40.0)
+D1, D3, D4 = -12715105075.0 / 11282082432.0, 87487479700.0 / 32700410799.0, -10690763975.0 / 1880347072.0
+D5, D6, D7 = 701980252875.0 / 199316789632.0, -1453857185.0 / 822651844.0, 69997945.0 / 29380423.0
+NY = 8
+
+
+@njit(cache=True)
+def rk_rhs(p, contact, sgn, s, fe_level, y, dy):
+    """Right-hand side in (x_r, v_r, V_c, X_c, W_drive, D_damp, D_contact, D_friction)."""
+    K, C, F0 = contact_terms(p, contact)
+    fe = drive_force(p, s, fe_level)
+    Fi = K * y[0] + C * y[1] + F0
+    V = abs(y[2])
+    L = kinetic_level(p, V)
+    ac = (-sgn * L + Fi) / p[I_MC]
+    am = (fe - Fi) / p[I_MM]
+    dy[0] = y[1]
+    dy[1] = am - ac
+    dy[2] = ac
+    dy[3] = y[2]
+    dy[4] = fe * (y[2] + y[1])
+    dy[5] = p[I_C] * y[1] * y[1]
+    dy[6] = (C - p[I_C]) * y[1] * y[1]
+    dy[7] = L * V
+
+
+@njit(cache=True)
+def dense_eval(rc, th, out):
+    """Evaluate the DOPRI5 continuous extension at theta in [0, 1]."""
+    t1 = 1.0 - th
+    for i in range(NY):
+        out[i] = rc[0, i] + th * (rc[1, i] + t1 * (rc[2, i] + th * (rc[3, i] + t1 * rc[4, i])))
+
+
+@njit(cache=True)
+def rk_event_value(p, contact, sgn, j, y):
+    """Inside-positive event functions of a fast-slip segment (j: 0 contact a, 1 contact b, 2 V_min)."""
+    G1 = p[I_G1]
+    G2 = p[I_G2]
+    if j == 2:
+        return sgn * y[2] - p[I_VMIN]
+    if contact == 0:
+        if j == 0:
+            return G1 - y[0]
+        if p[I_BACK] > 0.5:
+            return y[0] + G2
+        return 1.0
+    if contact == 1:
+        return y[0] - G1 if j == 0 else 1.0
+    return -G2 - y[0] if j == 0 else 1.0
+
+
+# ---------------------------------------------------------------------------
+# the run
+
+
+@njit(cache=True)
+def _grow(ev, n):
+    new = np.empty((ev.shape[0] * 2 + 64, 2))
+    new[:n] = ev[:n]
+    return new
+
+
+@njit(cache=True)
+def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_cap):
+    """Run n_transient + n_record excitation periods from state0; return the records.
+
+    state0 = [x_r, v_r, X_c, V_c] [m, m/s] at phase 0 (time 0).
+    Returns (status, status_time_s, samples, n_samples_written, events, n_events,
+    periods, energy, final_state) where final_state = [x_r, v_r, X_c, V_c, contact, shell].
+    """
+    nper = opts[O_NPER]
+    do_energy = opts[O_ENERGY] > 0.5
+    zeno_max = int(opts[O_ZENO])
+    max_steps = int(opts[O_MAXSTEPS])
+    rtol = opts[O_RTOL]
+    f = p[I_F]
+    T = 1.0 / f
+    harmonic = p[I_WAVE] < 0.5
+    DT = p[I_DUTY] * T
+    G1 = p[I_G1]
+    G2 = p[I_G2]
+    Mm = p[I_MM]
+    Mc = p[I_MC]
+    Mt = Mm + Mc
+    back = p[I_BACK] > 0.5
+    tol_x = 1e-13 * p[I_XS]
+    tol_v = 1e-13 * p[I_VS]
+    tol_F = 1e-13 * p[I_FS]
+
+    samples = np.zeros((n_samples, N_SAMPLE_COLS))
+    rec_events = ev_cap != 0
+    events = np.zeros((ev_cap if ev_cap > 0 else 64, 2))
+    periods = np.zeros((max(n_record, 0), N_PERIOD_COLS))
+    energy = np.zeros(6)
+    final = np.zeros(6)
+
+    coef = np.zeros((4, NB))
+    evc = np.zeros((4, NB))
+    devc = np.zeros((4, NB))
+    ddevc = np.zeros((4, NB))
+    evcode = np.zeros(4, dtype=np.int64)
+    evtol = np.zeros(4)
+    cF = np.zeros(NB)
+    dcF = np.zeros(NB)
+    ddcF = np.zeros(NB)
+    negc = np.zeros(NB)
+    negdc = np.zeros(NB)
+    tmpc = np.zeros(NB)
+    B = np.zeros(NB)
+    Bs = np.zeros(NB)
+    ga = np.zeros(4)
+    dga = np.zeros(4)
+    # RK work arrays
+    y = np.zeros(NY)
+    y1 = np.zeros(NY)
+    yt = np.zeros(NY)
+    k1 = np.zeros(NY)
+    k2 = np.zeros(NY)
+    k3 = np.zeros(NY)
+    k4 = np.zeros(NY)
+    k5 = np.zeros(NY)
+    k6 = np.zeros(NY)
+    k7 = np.zeros(NY)
+    rc = np.zeros((5, NY))
+    yd = np.zeros(NY)
+
+    xr = state0[0]
+    vr = state0[1]
+    Xc = state0[2]
+    Vc = state0[3]
+    contact = contact_of(p, xr)
+    s = 0.0
+    fe0 = drive_force(p, 0.0, p[I_PD])
+    if Vc == 0.0:
+        shell = decide_shell(p, contact, xr, vr, fe0)
+        if shell < 0:
+            return STATUS_ILLPOSED, 0.0, samples, 0, events, 0, periods, energy, final
+    else:
+        fast = p[I_LAW] > 0.5 and abs(Vc) >= p[I_VMIN]
+        if Vc > 0:
+            shell = FAST_POS if fast else SLIP_POS
+        else:
+            shell = FAST_NEG if fast else SLIP_NEG
+
+    n_total = n_transient + n_record
+    period = 0
+    n_ev = 0
+    j_sample = 0
+    status = STATUS_OK
+    status_t = 0.0
+    zeno_count = 0
+    # period accumulators
+    Xc_start = Xc
+    n_front = 0
+    n_back = 0
+    maxF = -1.0
+    t_maxF = 0.0
+    stick_time = 0.0
+    n_stick = 0
+    if n_record > 0 and n_transient == 0:
+        periods[0, P_XR0] = xr
+        periods[0, P_VR0] = vr
+        periods[0, P_VM0] = Vc + vr
+        periods[0, P_VC0] = Vc
+    E_at_record = stored_energy(p, xr, vr, Vc) if n_transient == 0 else 0.0
+    energy[E_START] = E_at_record
+    rec_t0 = n_transient * T
+    if n_transient == 0 and n_record > 0 and not harmonic and rec_events:
+        events[0, 0] = 0.0
+        events[0, 1] = K_DRIVE_ON
+        n_ev = 1
+
+    while period < n_total:
+        recording = period >= n_transient
+        # segment boundary and drive level
+        if harmonic:
+            s_end = T
+            fe_level = 0.0
+        else:
+            if s < DT:
+                s_end = DT
+                fe_level = p[I_PD]
+            else:
+                s_end = T
+                fe_level = 0.0
+        tau_end = s_end - s
+        ev = EV_NONE
+        tau_ev = tau_end
+        K, Cd, F0 = contact_terms(p, contact)
+        seg_stick = shell == STICK
+        Xc_seg0 = Xc
+
+        if shell <= SLIP_NEG:
+            # ---------------- linear closed-form segment
+            sig, disc, w, wmax, Om = setup_linear(p, contact, shell, s, xr, vr, Xc, Vc, fe_level, coef)
+            h = TWO_PI / wmax / nper
+            # events of this mode
+            ne = 0
+            if contact == 0:
+                for j in range(NB):
+                    evc[ne, j] = -coef[0, j]
+                evc[ne, 4] += G1
+                evcode[ne] = EV_FRONT_ON
+                evtol[ne] = tol_x
+                ne += 1
+                if back:
+                    for j in range(NB):
+                        evc[ne, j] = coef[0, j]
+                    evc[ne, 4] += G2
+                    evcode[ne] = EV_BACK_ON
+                    evtol[ne] = tol_x
+                    ne += 1
+            elif contact == 1:
+                for j in range(NB):
+                    evc[ne, j] = coef[0, j]
+                evc[ne, 4] -= G1
+                evcode[ne] = EV_FRONT_OFF
+                evtol[ne] = tol_x
+                ne += 1
+            else:
+                for j in range(NB):
+                    evc[ne, j] = -coef[0, j]
+                evc[ne, 4] -= G2
+                evcode[ne] = EV_BACK_OFF
+                evtol[ne] = tol_x
+                ne += 1
+            for j in range(NB):
+                cF[j] = K * coef[0, j] + Cd * coef[1, j]
+            cF[4] += F0
+            if shell == STICK:
+                if p[I_PB] < np.inf:
+                    for j in range(NB):
+                        evc[ne, j] = -cF[j]
+                        evc[ne + 1, j] = cF[j]
+                    evc[ne, 4] += p[I_PB]
+                    evc[ne + 1, 4] += p[I_PB]
+                    evcode[ne] = EV_BREAK_POS
+                    evcode[ne + 1] = EV_BREAK_NEG
+                    evtol[ne] = tol_F
+                    evtol[ne + 1] = tol_F
+                    ne += 2
+            else:
+                sg = 1.0 if shell == SLIP_POS else -1.0
+                for j in range(NB):
+                    evc[ne, j] = sg * coef[3, j]
+                evcode[ne] = EV_SLIP_END
+                evtol[ne] = tol_v
+                ne += 1
+                if p[I_LAW] > 0.5 and p[I_VMIN] < np.inf:
+                    for j in range(NB):
+                        evc[ne, j] = -sg * coef[3, j]
+                    evc[ne, 4] += p[I_VMIN]
+                    evcode[ne] = EV_FAST_ON
+                    evtol[ne] = tol_v
+                    ne += 1
+            for e in range(ne):
+                deriv_coefs(evc[e], sig, disc, Om, devc[e])
+                deriv_coefs(devc[e], sig, disc, Om, ddevc[e])
+            deriv_coefs(cF, sig, disc, Om, dcF)
+            deriv_coefs(dcF, sig, disc, Om, ddcF)
+            # scan
+            basis(0.0, s, sig, disc, w, Om, B)
+            for e in range(ne):
+                ga[e] = dot7(evc[e], B)
+                dga[e] = dot7(devc[e], B)
+            Fa = dot7(cF, B)
+            dFa = dot7(dcF, B)
+            if recording and abs(Fa) > maxF:
+                maxF = abs(Fa)
+                t_maxF = period * T + s
+            ta = 0.0
+            while True:
+                tb = min(ta + h, tau_end)
+                basis(tb, s, sig, disc, w, Om, B)
+                best = tb + 1.0
+                best_e = -1
+                for e in range(ne):
+                    gb = dot7(evc[e], B)
+                    dgb = dot7(devc[e], B)
+                    r = -1.0
+                    if gb < 0.0:
+                        if ga[e] >= 0.0:
+                            r = refine_root(evc[e], devc[e], ta, tb, s, sig, disc, w, Om, Bs)
+                        elif dga[e] > 0.0 and dgb < 0.0:
+                            # started a rounding error outside but moving inside: bracket from the maximum
+                            m = refine_root(devc[e], ddevc[e], ta, tb, s, sig, disc, w, Om, Bs)
+                            basis(m, s, sig, disc, w, Om, Bs)
+                            if dot7(evc[e], Bs) >= 0.0:
+                                r = refine_root(evc[e], devc[e], m, tb, s, sig, disc, w, Om, Bs)
+                            else:
+                                r = ta
+                        else:
+                            r = ta
+                    elif dga[e] < 0.0 and dgb > 0.0:
+                        for j in range(NB):
+                            negc[j] = -devc[e, j]
+                            negdc[j] = -ddevc[e, j]
+                        m = refine_root(negc, negdc, ta, tb, s, sig, disc, w, Om, Bs)
+                        basis(m, s, sig, disc, w, Om, Bs)
+                        gm = dot7(evc[e], Bs)
+                        if gm < -evtol[e]:
+                            r = refine_root(evc[e], devc[e], ta, m, s, sig, disc, w, Om, Bs)
+                    if r >= 0.0 and r < best:
+                        best = r
+                        best_e = e
+                        if DEBUG:
+                            print('EV', period * T + s, evcode[e], r, ta, tb, gb, dgb, ga[e], dga[e], shell, contact)
+                    ga[e] = gb
+                    dga[e] = dgb
+                t_stop = tb if best_e < 0 else best
+                # extrema of F_i within [ta, t_stop]
+                if recording:
+                    Fb = dot7(cF, B)
+                    dFb = dot7(dcF, B)
+                    if (dFa > 0.0 and dFb < 0.0) or (dFa < 0.0 and dFb > 0.0):
+                        if dFa > 0.0:
+                            m = refine_root(dcF, ddcF, ta, tb, s, sig, disc, w, Om, Bs)
+                        else:
+                            for j in range(NB):
+                                negc[j] = -dcF[j]
+                                negdc[j] = -ddcF[j]
+                            m = refine_root(negc, negdc, ta, tb, s, sig, disc, w, Om, Bs)
+                        if m <= t_stop:
+                            basis(m, s, sig, disc, w, Om, Bs)
+                            Fm = abs(dot7(cF, Bs))
+                            if Fm > maxF:
+                                maxF = Fm
+                                t_maxF = period * T + s + m
+                    if best_e < 0 and abs(Fb) > maxF:
+                        maxF = abs(Fb)
+                        t_maxF = period * T + s + tb
+                    Fa = Fb
+                    dFa = dFb
+                if best_e >= 0:
+                    ev = evcode[best_e]
+                    tau_ev = best
+                    break
+                if tb >= tau_end:
+                    break
+                ta = tb
+            # end state
+            basis(tau_ev, s, sig, disc, w, Om, B)
+            xr1 = dot7(coef[0], B)
+            vr1 = dot7(coef[1], B)
+            Xc1 = dot7(coef[2], B)
+            Vc1 = dot7(coef[3], B)
+            if recording:
+                F1 = abs(K * xr1 + Cd * vr1 + F0)
+                if F1 > maxF:
+                    maxF = F1
+                    t_maxF = period * T + s + tau_ev
+            # samples
+            if recording and n_samples > 0:
+                while j_sample < n_samples:
+                    ts = j_sample * sample_dt - (period - n_transient) * T
+                    if ts >= s + tau_ev:
+                        break
+                    tt = ts - s
+                    if tt < 0.0:
+                        tt = 0.0
+                    basis(tt, s, sig, disc, w, Om, Bs)
+                    sx = dot7(coef[0], Bs)
+                    sv = dot7(coef[1], Bs)
+                    sXc = dot7(coef[2], Bs)
+                    sVc = dot7(coef[3], Bs)
+                    row = samples[j_sample]
+                    row[S_T] = rec_t0 + j_sample * sample_dt
+                    row[S_XM] = sXc + sx
+                    row[S_XC] = sXc
+                    row[S_VM] = sVc + sv
+                    row[S_VC] = sVc
+                    row[S_XR] = sx
+                    row[S_CONTACT] = contact
+                    row[S_STICK] = 1.0 if shell == STICK else 0.0
+                    row[S_FI] = K * sx + Cd * sv + F0
+                    j_sample += 1
+            if recording and do_energy:
+                gl_energy(p, coef, contact, shell, s, tau_ev, h, sig, disc, w, Om, fe_level, Bs, energy)
+                if shell != STICK:
+                    energy[E_FRIC] += p[I_L0] * abs(Xc1 - Xc_seg0)
+            xr = xr1
+            vr = vr1
+            Xc = Xc1
+            Vc = 0.0 if shell == STICK else Vc1
+        else:
+            # ---------------- fast slip: speed-dependent law, DOPRI5 with dense output
+            sg = 1.0 if shell == FAST_POS else -1.0
+            w0 = math.sqrt(K * (1.0 / Mm + 1.0 / Mc))
+            wmax = w0
+            if harmonic:
+                wmax = max(wmax, TWO_PI * f)
+            hmax = TWO_PI / wmax / 8.0
+            y[0] = xr
+            y[1] = vr
+            y[2] = Vc
+            y[3] = Xc
+            for i in range(4, NY):
+                y[i] = 0.0
+            tau = 0.0
+            hh = hmax * 0.1
+            rk_rhs(p, contact, sg, s, fe_level, y, k1)
+            atol_x = rtol * p[I_XS]
+            atol_v = rtol * p[I_VS]
+            nsteps = 0
+            g0 = np.zeros(3)
+            for j in range(3):
+                g0[j] = rk_event_value(p, contact, sg, j, y)
+            Fa = K * y[0] + Cd * y[1] + F0
+            dFa = K * k1[0] + Cd * k1[1]
+            while True:
+                nsteps += 1
+                if nsteps > max_steps:
+                    status = STATUS_RKFAIL
+                    status_t = period * T + s + tau
+                    break
+                hh = min(hh, hmax, tau_end - tau)
+                sa = s + tau
+                for i in range(NY):
+                    yt[i] = y[i] + hh * A21 * k1[i]
+                rk_rhs(p, contact, sg, sa + C2 * hh, fe_level, yt, k2)
+                for i in range(NY):
+                    yt[i] = y[i] + hh * (A31 * k1[i] + A32 * k2[i])
+                rk_rhs(p, contact, sg, sa + C3 * hh, fe_level, yt, k3)
+                for i in range(NY):
+                    yt[i] = y[i] + hh * (A41 * k1[i] + A42 * k2[i] + A43 * k3[i])
+                rk_rhs(p, contact, sg, sa + C4 * hh, fe_level, yt, k4)
+                for i in range(NY):
+                    yt[i] = y[i] + hh * (A51 * k1[i] + A52 * k2[i] + A53 * k3[i] + A54 * k4[i])
+                rk_rhs(p, contact, sg, sa + C5 * hh, fe_level, yt, k5)
+                for i in range(NY):
+                    yt[i] = y[i] + hh * (A61 * k1[i] + A62 * k2[i] + A63 * k3[i] + A64 * k4[i] + A65 * k5[i])
+                rk_rhs(p, contact, sg, sa + hh, fe_level, yt, k6)
+                for i in range(NY):
+                    y1[i] = y[i] + hh * (B1 * k1[i] + B3 * k3[i] + B4 * k4[i] + B5 * k5[i] + B6 * k6[i])
+                rk_rhs(p, contact, sg, sa + hh, fe_level, y1, k7)
+                err = 0.0
+                for i in range(4):
+                    ei = hh * (E1 * k1[i] + E3 * k3[i] + E4 * k4[i] + E5 * k5[i] + E6 * k6[i] + E7 * k7[i])
+                    at = atol_x if (i == 0 or i == 3) else atol_v
+                    sc = at + rtol * max(abs(y[i]), abs(y1[i]))
+                    err += (ei / sc) ** 2
+                err = math.sqrt(err / 4.0)
+                if err > 1.0:
+                    hh *= max(0.2, 0.9 * err ** -0.2)
+                    continue
+                # dense output
+                for i in range(NY):
+                    rc[0, i] = y[i]
+                    rc[1, i] = y1[i] - y[i]
+                    rc[2, i] = hh * k1[i] - rc[1, i]
+                    rc[3, i] = rc[1, i] - hh * k7[i] - rc[2, i]
+                    rc[4, i] = hh * (D1 * k1[i] + D3 * k3[i] + D4 * k4[i] + D5 * k5[i] + D6 * k6[i] + D7 * k7[i])
+                # events
+                th_ev = 2.0
+                e_ev = -1
+                for j in range(3):
+                    g1 = rk_event_value(p, contact, sg, j, y1)
+                    lo = 0.0
+                    hi = -1.0
+                    if g1 < 0.0:
+                        hi = 1.0
+                    elif j < 2 and g1 != 1.0:
+                        # grazing: the contact function's derivative is +-v_r
+                        dsa = k1[0] if ((contact == 0 and j == 1) or contact == 1) else -k1[0]
+                        dsb = k7[0] if ((contact == 0 and j == 1) or contact == 1) else -k7[0]
+                        if dsa < 0.0 and dsb > 0.0:
+                            a_ = 0.0
+                            b_ = 1.0
+                            for _ in range(60):
+                                mth = 0.5 * (a_ + b_)
+                                # derivative from the interpolant (central difference)
+                                dense_eval(rc, min(mth + 1e-7, 1.0), yd)
+                                gp = rk_event_value(p, contact, sg, j, yd)
+                                dense_eval(rc, max(mth - 1e-7, 0.0), yd)
+                                gm_ = rk_event_value(p, contact, sg, j, yd)
+                                if gp - gm_ < 0.0:
+                                    a_ = mth
+                                else:
+                                    b_ = mth
+                            dense_eval(rc, 0.5 * (a_ + b_), yd)
+                            if rk_event_value(p, contact, sg, j, yd) < -tol_x:
+                                hi = 0.5 * (a_ + b_)
+                    if hi > 0.0:
+                        a_ = lo
+                        b_ = hi
+                        for _ in range(80):
+                            mth = 0.5 * (a_ + b_)
+                            dense_eval(rc, mth, yd)
+                            if rk_event_value(p, contact, sg, j, yd) >= 0.0:
+                                a_ = mth
+                            else:
+                                b_ = mth
+                            if b_ - a_ < 1e-16:
+                                break
+                        if b_ < th_ev:
+                            th_ev = b_
+                            e_ev = j
+                th_stop = 1.0 if e_ev < 0 else th_ev
+                if th_stop < 1.0:
+                    dense_eval(rc, th_stop, y1)
+                # F_i extrema
+                if recording:
+                    Fb = K * y1[0] + Cd * y1[1] + F0
+                    dFb = K * k7[0] + Cd * k7[1]
+                    if dFa * dFb < 0.0:
+                        a_ = 0.0
+                        b_ = th_stop
+                        sgnF = 1.0 if dFa > 0 else -1.0
+                        for _ in range(60):
+                            m1 = a_ + (b_ - a_) * 0.381966
+                            m2 = a_ + (b_ - a_) * 0.618034
+                            dense_eval(rc, m1, yd)
+                            f1 = sgnF * (K * yd[0] + Cd * yd[1] + F0)
+                            dense_eval(rc, m2, yd)
+                            f2 = sgnF * (K * yd[0] + Cd * yd[1] + F0)
+                            if f1 > f2:
+                                b_ = m2
+                            else:
+                                a_ = m1
+                        dense_eval(rc, 0.5 * (a_ + b_), yd)
+                        Fm = abs(K * yd[0] + Cd * yd[1] + F0)
+                        if Fm > maxF:
+                            maxF = Fm
+                            t_maxF = period * T + sa + 0.5 * (a_ + b_) * hh
+                    if abs(Fb) > maxF:
+                        maxF = abs(Fb)
+                        t_maxF = period * T + sa + th_stop * hh
+                    Fa = Fb
+                    dFa = dFb
+                # samples
+                if recording and n_samples > 0:
+                    while j_sample < n_samples:
+                        ts = j_sample * sample_dt - (period - n_transient) * T
+                        if ts >= sa + th_stop * hh:
+                            break
+                        th = (ts - sa) / hh
+                        if th < 0.0:
+                            th = 0.0
+                        dense_eval(rc, th, yd)
+                        row = samples[j_sample]
+                        row[S_T] = rec_t0 + j_sample * sample_dt
+                        row[S_XM] = yd[3] + yd[0]
+                        row[S_XC] = yd[3]
+                        row[S_VM] = yd[2] + yd[1]
+                        row[S_VC] = yd[2]
+                        row[S_XR] = yd[0]
+                        row[S_CONTACT] = contact
+                        row[S_STICK] = 0.0
+                        row[S_FI] = K * yd[0] + Cd * yd[1] + F0
+                        j_sample += 1
+                if e_ev >= 0:
+                    tau += th_stop * hh
+                    for i in range(NY):
+                        y[i] = y1[i]
+                    if e_ev == 2:
+                        ev = EV_FAST_OFF
+                    elif contact == 0:
+                        ev = EV_FRONT_ON if e_ev == 0 else EV_BACK_ON
+                    elif contact == 1:
+                        ev = EV_FRONT_OFF
+                    else:
+                        ev = EV_BACK_OFF
+                    break
+                tau += hh
+                for i in range(NY):
+                    y[i] = y1[i]
+                    k1[i] = k7[i]
+                if tau >= tau_end:
+                    break
+                if err > 0.0:
+                    hh *= min(5.0, max(0.2, 0.9 * err ** -0.2))
+                else:
+                    hh *= 5.0
+            if status != STATUS_OK:
+                break
+            tau_ev = tau if ev != EV_NONE else tau_end
+            xr = y[0]
+            vr = y[1]
+            Vc = y[2]
+            Xc = y[3]
+            if recording and do_energy:
+                energy[E_DRIVE] += y[4]
+                energy[E_DAMP] += y[5]
+                energy[E_CONTACT] += y[6]
+                energy[E_FRIC] += y[7]
+
+        # ---------------- bookkeeping of the segment
+        if recording and seg_stick:
+            stick_time += tau_ev
+        if ev == EV_NONE:
+            s = s_end
+            zeno_count = 0
+        else:
+            s = s + tau_ev
+            if tau_ev <= 1e-12 * T:
+                zeno_count += 1
+                if zeno_count > zeno_max:
+                    status = STATUS_ZENO
+                    status_t = period * T + s
+                    break
+            else:
+                zeno_count = 0
+        t_glob = period * T + s
+        kind = 0
+        kind2 = 0
+        if ev == EV_FRONT_ON:
+            contact = 1
+            kind = K_FRONT_ON
+            if recording:
+                n_front += 1
+        elif ev == EV_BACK_ON:
+            contact = 2
+            kind = K_BACK_ON
+            if recording:
+                n_back += 1
+        elif ev == EV_FRONT_OFF:
+            contact = 0
+            kind = K_FRONT_OFF
+        elif ev == EV_BACK_OFF:
+            contact = 0
+            kind = K_BACK_OFF
+        new_shell = shell
+        fe_now = drive_force(p, s, fe_level)
+        if ev == EV_FRONT_ON or ev == EV_BACK_ON or ev == EV_FRONT_OFF or ev == EV_BACK_OFF:
+            if shell == STICK:
+                new_shell = decide_shell(p, contact, xr, vr, fe_now)
+        elif ev == EV_BREAK_POS or ev == EV_BREAK_NEG:
+            new_shell = decide_shell(p, contact, xr, vr, fe_now)
+        elif ev == EV_SLIP_END:
+            Vc = 0.0
+            new_shell = decide_shell(p, contact, xr, vr, fe_now)
+        elif ev == EV_FAST_ON:
+            new_shell = FAST_POS if shell == SLIP_POS else FAST_NEG
+        elif ev == EV_FAST_OFF:
+            if p[I_VMIN] > 0.0:
+                new_shell = SLIP_POS if shell == FAST_POS else SLIP_NEG
+            else:
+                Vc = 0.0
+                new_shell = decide_shell(p, contact, xr, vr, fe_now)
+        if new_shell < 0:
+            status = STATUS_ILLPOSED
+            status_t = t_glob
+            break
+        if new_shell != shell:
+            if new_shell == STICK:
+                kind2 = K_STICK
+                Vc = 0.0
+                if recording:
+                    n_stick += 1
+            elif (new_shell == SLIP_POS or new_shell == FAST_POS) and not (shell == SLIP_POS or shell == FAST_POS):
+                kind2 = K_SLIP_FWD
+            elif (new_shell == SLIP_NEG or new_shell == FAST_NEG) and not (shell == SLIP_NEG or shell == FAST_NEG):
+                kind2 = K_SLIP_BWD
+            if new_shell != STICK and shell == STICK:
+                Vc = 0.0
+        shell = new_shell
+        if ev == EV_NONE and not harmonic:
+            kind = K_DRIVE_OFF if s_end == DT and s_end < T else 0
+        if recording and rec_events and (kind > 0 or kind2 > 0):
+            for kk in (kind, kind2):
+                if kk > 0:
+                    if n_ev >= events.shape[0]:
+                        if ev_cap < 0:
+                            events = _grow(events, n_ev)
+                        else:
+                            status = STATUS_EVCAP
+                    if n_ev < events.shape[0]:
+                        events[n_ev, 0] = t_glob
+                        events[n_ev, 1] = kk
+                        n_ev += 1
+        # ---------------- period end
+        if ev == EV_NONE and s_end == T:
+            if recording:
+                q = period - n_transient
+                periods[q, P_DISP] = Xc - Xc_start
+                periods[q, P_NFRONT] = n_front
+                periods[q, P_NBACK] = n_back
+                periods[q, P_MAXF] = maxF
+                periods[q, P_TMAXF] = t_maxF
+                periods[q, P_STICK] = stick_time / T
+                periods[q, P_XC0] = Xc_start
+                periods[q, P_NSTICK] = n_stick
+            period += 1
+            s = 0.0
+            Xc_start = Xc
+            n_front = 0
+            n_back = 0
+            maxF = -1.0
+            stick_time = 0.0
+            n_stick = 0
+            if period >= n_transient and period < n_total:
+                q = period - n_transient
+                periods[q, P_XR0] = xr
+                periods[q, P_VR0] = vr
+                periods[q, P_VM0] = Vc + vr
+                periods[q, P_VC0] = Vc
+                if period == n_transient:
+                    energy[E_START] = stored_energy(p, xr, vr, Vc)
+                if not harmonic and rec_events:
+                    if n_ev >= events.shape[0] and ev_cap < 0:
+                        events = _grow(events, n_ev)
+                    if n_ev < events.shape[0]:
+                        events[n_ev, 0] = period * T
+                        events[n_ev, 1] = K_DRIVE_ON
+                        n_ev += 1
+    energy[E_END] = stored_energy(p, xr, vr, Vc)
+    final[0] = xr
+    final[1] = vr
+    final[2] = Xc
+    final[3] = Vc
+    final[4] = contact
+    final[5] = shell
+    return status, status_t, samples, j_sample, events, n_ev, periods, energy, final
+
+
+@njit(cache=True, parallel=True)
+def run_many(P, opts, states0, n_transient, n_record):
+    """Run many independent points in parallel (fixed initial conditions, no samples/events).
+
+    P: (n, N_PARAMS); states0: (n, 4). Returns (status (n,), periods (n, n_record, cols),
+    energy (n, 6), final (n, 6)).
+    """
+    n = P.shape[0]
+    status = np.zeros(n, dtype=np.int64)
+    periods = np.zeros((n, n_record, N_PERIOD_COLS))
+    energy = np.zeros((n, 6))
+    final = np.zeros((n, 6))
+    for i in prange(n):
+        st, st_t, sm, ns, ev, nev, per, en, fin = run_core(P[i], opts, states0[i], n_transient, n_record,
+                                                          1.0, 0, 0)
+        status[i] = st
+        periods[i] = per
+        energy[i] = en
+        final[i] = fin
+    return status, periods, energy, final

@@ -1,0 +1,269 @@
+"""Parameters of the vibro-impact capsule model, drive and shell friction (SI), packed for the engine.
+
+Sources: seed 000 eqs 19-23 and Table 2 (one-sided prototype, labels restored in
+physics.md section 1); seed 001 Appendix A and seed 002 Table 2 (double-sided);
+``configs/params/prototype_*.yaml`` and ``friction_laws_dynamics.yaml`` hold the
+published numbers with their citations.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..config import load_param_set
+from ..errors import InputError
+from ..units import to_si
+from . import engine as E
+
+#: parameter names of the model files (contract section 4) -> attribute of :class:`CapsuleModel`
+MODEL_PARAM_NAMES = {
+    "mass_magnet_g": "mass_magnet_kg",
+    "mass_capsule_g": "mass_capsule_kg",
+    "gap_mm": "gap_m",
+    "spring_N_m": "spring_N_m",
+    "damping_Ns_m": "damping_Ns_m",
+    "constraint_N_m": "constraint_N_m",
+    "constraint_damping_Ns_m": "constraint_damping_Ns_m",
+    "gap_back_mm": "gap_back_m",
+    "constraint_back_N_m": "constraint_back_N_m",
+    "constraint_back_damping_Ns_m": "constraint_back_damping_Ns_m",
+}
+
+
+@dataclass(frozen=True)
+class CapsuleModel:
+    """Two-mass vibro-impact capsule (seed 000 eqs 19-20; seed 001 App. A), SI units.
+
+    mass_magnet_kg : M_m [kg]; mass_capsule_kg : M_c [kg]; spring_N_m : k [N/m];
+    damping_Ns_m : c [N s/m]; gap_m : G_1 [m]; constraint_N_m : k_1 [N/m];
+    constraint_damping_Ns_m : front contact damping [N s/m] (0 for seed 000's one-sided model);
+    double_sided : add the back constraint k_b at x_r <= -G_2 (seed 001 App. A).
+    """
+
+    mass_magnet_kg: float = 1.8e-3
+    mass_capsule_kg: float = 1.67e-3
+    spring_N_m: float = 62.0
+    damping_Ns_m: float = 0.0156
+    gap_m: float = 1.6e-3
+    constraint_N_m: float = 27.9e3
+    constraint_damping_Ns_m: float = 0.0
+    double_sided: bool = False
+    gap_back_m: float = 0.1e-3
+    constraint_back_N_m: float = 0.0
+    constraint_back_damping_Ns_m: float = 0.0
+
+    def validate(self, where: str = "model") -> "CapsuleModel":
+        for name in ("mass_magnet_kg", "mass_capsule_kg", "spring_N_m", "gap_m"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise InputError(f"{where}: {name} must be a positive number, got {v}")
+        for name in ("damping_Ns_m", "constraint_N_m", "constraint_damping_Ns_m", "constraint_back_N_m",
+                     "constraint_back_damping_Ns_m", "gap_back_m"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise InputError(f"{where}: {name} must be a non-negative number, got {v}")
+        if self.double_sided and not self.gap_back_m > 0:
+            raise InputError(f"{where}: gap_back_m must be > 0 for the double-sided model")
+        return self
+
+    @classmethod
+    def from_params(cls, params: dict[str, float], double_sided: bool | None = None,
+                    where: str = "params") -> "CapsuleModel":
+        """Build from model-file names (``mass_magnet_g: 1.8`` ...); unknown names are errors."""
+        kw = {}
+        for name, value in params.items():
+            if name == "Pf_N":
+                continue
+            if name not in MODEL_PARAM_NAMES:
+                raise InputError(f"{where}: unknown model parameter '{name}' "
+                                 f"(known: {', '.join(sorted(MODEL_PARAM_NAMES))}, Pf_N)")
+            kw[MODEL_PARAM_NAMES[name]] = float(to_si(float(value), name))
+        if double_sided is None:
+            double_sided = "constraint_back_N_m" in params
+        kw["double_sided"] = bool(double_sided)
+        return cls(**kw).validate(where)
+
+    def with_param(self, name: str, value: float) -> "CapsuleModel":
+        """Return a copy with one model-file parameter (unit from its suffix) changed."""
+        if name not in MODEL_PARAM_NAMES:
+            raise InputError(f"unknown model parameter '{name}' (known: {', '.join(sorted(MODEL_PARAM_NAMES))})")
+        return replace(self, **{MODEL_PARAM_NAMES[name]: float(to_si(value, name))}).validate()
+
+
+def load_model(name: str = "prototype_one_sided") -> tuple[CapsuleModel, float | None]:
+    """Return (model, P_f [N] or None) from ``configs/params/<name>.yaml`` or a path."""
+    params = load_param_set(name)
+    pf = params.get("Pf_N")
+    return CapsuleModel.from_params(params, where=str(name)), (None if pf is None else float(pf))
+
+
+@dataclass(frozen=True)
+class Drive:
+    """External force on the magnet: harmonic P_d cos(2 pi f t) (seed 000) or square wave
+    P_d on [nT, nT + D T) (seed 001 App. A). amplitude_N [N], frequency_Hz [Hz], duty [-]."""
+
+    amplitude_N: float = 0.15
+    frequency_Hz: float = 30.0
+    waveform: str = "harmonic"
+    duty: float = 0.5
+
+    def validate(self) -> "Drive":
+        if self.waveform not in ("harmonic", "square"):
+            raise InputError(f"waveform must be 'harmonic' or 'square', got '{self.waveform}'")
+        if not (math.isfinite(self.frequency_Hz) and self.frequency_Hz > 0):
+            raise InputError(f"frequency must be > 0 Hz, got {self.frequency_Hz}")
+        if not (math.isfinite(self.amplitude_N) and self.amplitude_N >= 0):
+            raise InputError(f"drive amplitude must be >= 0 N, got {self.amplitude_N}")
+        if self.waveform == "square" and not 0 < self.duty < 1:
+            raise InputError(f"duty must lie in (0, 1), got {self.duty}")
+        return self
+
+
+@dataclass(frozen=True)
+class Friction:
+    """Shell friction (seed 000 eqs 21-23; physics.md section 3), SI.
+
+    kind: 'coulomb' (P_s = P_k = level_N unless static_N given), 'eq22', 'eq23', 'fixed' (P_f = inf),
+    or 'law' (a V^n + b with given coefficients).
+    The speed laws are F[mN] = a V[mm/s]^n + b. Well-posed mode (default): breakaway
+    = max(static, law at 0+ after the hold), law held at its value at V_min below V_min.
+    literal=True: breakaway = static as written and the law used down to V = 0 (eq 22 is then
+    ill-posed and the engine stops with a clear error instead of looping).
+    """
+
+    kind: str = "coulomb"
+    level_N: float = 0.0078
+    static_N: float | None = None
+    a_mN: float = 0.0
+    n: float = 0.25
+    b_mN: float = 0.0
+    v_min_mm_s: float = 0.2
+    literal: bool = False
+
+    def validate(self) -> "Friction":
+        if self.kind not in ("coulomb", "eq22", "eq23", "fixed", "law"):
+            raise InputError(f"unknown friction '{self.kind}' (coulomb, eq22, eq23, fixed, law)")
+        if self.kind == "coulomb":
+            if not self.level_N > 0:
+                raise InputError(f"friction level P_f must be > 0 N (use --friction fixed for P_f = inf), "
+                                 f"got {self.level_N}")
+        if self.kind in ("eq22", "eq23", "law"):
+            if not self.v_min_mm_s >= 0:
+                raise InputError(f"V_min must be >= 0 mm/s, got {self.v_min_mm_s}")
+            if not self.literal and not self.v_min_mm_s > 0:
+                raise InputError("V_min must be > 0 mm/s for the well-posed speed law (or use literal)")
+        return self
+
+    def kinetic_N(self, speed_m_s):
+        """Return the kinetic level [N] at slip speed [m/s] (the regularised law)."""
+        v = np.abs(np.asarray(speed_m_s, dtype=float))
+        if self.kind == "coulomb":
+            return np.full_like(v, self.level_N)
+        if self.kind == "fixed":
+            return np.full_like(v, np.inf)
+        vmm = v * 1e3
+        if not self.literal:
+            vmm = np.maximum(vmm, self.v_min_mm_s)
+        return 1e-3 * (self.a_mN * vmm ** self.n + self.b_mN)
+
+    def levels(self) -> tuple[float, float, float]:
+        """Return (breakaway P_b [N], kinetic level below V_min L0 [N], V_min [m/s])."""
+        if self.kind == "fixed":
+            return math.inf, math.inf, math.inf
+        if self.kind == "coulomb":
+            pb = self.level_N if self.static_N is None else max(self.static_N, 0.0)
+            return pb, self.level_N, math.inf
+        static = self.static_N if self.static_N is not None else 0.0
+        if self.literal:
+            return static, 1e-3 * self.b_mN, 0.0
+        l0 = 1e-3 * (self.a_mN * self.v_min_mm_s ** self.n + self.b_mN)
+        return max(static, l0), l0, self.v_min_mm_s * 1e-3
+
+
+def friction_preset(kind: str, level_N: float | None = None, literal: bool = False,
+                    v_min_mm_s: float | None = None, laws: dict[str, float] | None = None) -> Friction:
+    """Return a friction model by name: coulomb (level P_f), eq22, eq23, fixed.
+
+    The eq 22/23 coefficients come from ``configs/params/friction_laws_dynamics.yaml``
+    (seed 000 eqs 17-18, 22-23).
+    """
+    if kind == "fixed":
+        return Friction(kind="fixed").validate()
+    if kind == "coulomb":
+        if level_N is None:
+            raise InputError("Coulomb friction needs a level P_f in N (--Pf-N)")
+        if math.isinf(level_N):
+            return Friction(kind="fixed").validate()
+        return Friction(kind="coulomb", level_N=float(level_N)).validate()
+    if kind not in ("eq22", "eq23"):
+        raise InputError(f"unknown friction '{kind}' (coulomb, eq22, eq23, fixed)")
+    L = laws if laws is not None else load_param_set("friction_laws_dynamics")
+    pre = kind
+    vmin = L["v_min_mm_s"] if v_min_mm_s is None else v_min_mm_s
+    return Friction(kind=kind, static_N=L[f"{pre}_static_mN"] * 1e-3, a_mN=L[f"{pre}_a_mN"],
+                    n=L[f"{pre}_n"], b_mN=L[f"{pre}_b_mN"], v_min_mm_s=float(vmin),
+                    literal=literal).validate()
+
+
+def pack_params(model: CapsuleModel, drive: Drive, friction: Friction) -> np.ndarray:
+    """Return the engine's parameter vector (SI) for a model, drive and friction."""
+    p = np.zeros(E.N_PARAMS)
+    p[E.I_MM] = model.mass_magnet_kg
+    p[E.I_MC] = model.mass_capsule_kg
+    p[E.I_K] = model.spring_N_m
+    p[E.I_C] = model.damping_Ns_m
+    p[E.I_G1] = model.gap_m
+    p[E.I_K1] = model.constraint_N_m
+    p[E.I_C1] = model.constraint_damping_Ns_m
+    p[E.I_G2] = model.gap_back_m if model.double_sided else 1e300
+    p[E.I_KB] = model.constraint_back_N_m if model.double_sided else 0.0
+    p[E.I_CB] = model.constraint_back_damping_Ns_m if model.double_sided else 0.0
+    p[E.I_BACK] = 1.0 if model.double_sided else 0.0
+    p[E.I_PD] = drive.amplitude_N
+    p[E.I_F] = drive.frequency_Hz
+    p[E.I_WAVE] = 0.0 if drive.waveform == "harmonic" else 1.0
+    p[E.I_DUTY] = drive.duty
+    pb, l0, vmin = friction.levels()
+    p[E.I_PB] = pb
+    p[E.I_L0] = l0
+    p[E.I_VMIN] = vmin
+    speed_law = friction.kind in ("eq22", "eq23", "law")
+    p[E.I_LAW] = 1.0 if speed_law else 0.0
+    if speed_law:
+        # F = 1e-3 [a (1e3 V)^n + b]  with V in m/s, F in N
+        p[E.I_LA] = 1e-3 * friction.a_mN * 1e3 ** friction.n
+        p[E.I_LN] = friction.n
+        p[E.I_LB] = 1e-3 * friction.b_mN
+    mu = model.mass_magnet_kg * model.mass_capsule_kg / (model.mass_magnet_kg + model.mass_capsule_kg)
+    xs = max(model.gap_m, drive.amplitude_N / model.spring_N_m, 1e-6)
+    fs = max(drive.amplitude_N, model.spring_N_m * xs, pb if math.isfinite(pb) else 0.0)
+    om = 2 * math.pi * drive.frequency_Hz
+    p[E.I_XS] = xs
+    p[E.I_FS] = fs
+    p[E.I_VS] = xs * max(om, math.sqrt(model.spring_N_m / mu))
+    return p
+
+
+@dataclass
+class EngineOptions:
+    """Numerical options: samples_per_fast_period (bracketing grid, 1/N of the fastest modal
+    period), energy (accumulate the energy balance), rk_rtol (fast-slip DOPRI5), zeno_max
+    (zero-length events tolerated in a row), rk_max_steps (per segment)."""
+
+    samples_per_fast_period: float = 12.0
+    energy: bool = True
+    rk_rtol: float = 1e-10
+    zeno_max: int = 200
+    rk_max_steps: int = 2_000_000
+    extra: dict = field(default_factory=dict)
+
+    def pack(self) -> np.ndarray:
+        o = np.zeros(E.N_OPTS)
+        o[E.O_NPER] = self.samples_per_fast_period
+        o[E.O_ENERGY] = 1.0 if self.energy else 0.0
+        o[E.O_RTOL] = self.rk_rtol
+        o[E.O_ZENO] = self.zeno_max
+        o[E.O_MAXSTEPS] = self.rk_max_steps
+        return o

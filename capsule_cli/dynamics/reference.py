@@ -1,0 +1,232 @@
+"""Reference and baseline integrator: scipy.integrate.solve_ivp with events (independent code).
+
+Written in the original coordinates (X_m, X_c, V_m, V_c) of seed 000 eqs 19-20 with
+the same set-valued friction rules (eqs 21-23, physics.md section 3) as the engine,
+but none of its closed forms: every smooth piece is integrated by solve_ivp and
+every switch (contact on/off, stick/slip, |V_c| = V_min, square-wave edges,
+period boundaries) is a terminal event or a chunk boundary. Used (1) at tight
+tolerance (DOP853, rtol 1e-12) as the accuracy reference of the tests and the
+benchmark and (2) at ordinary tolerance as the benchmark's baseline.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from .model import CapsuleModel, Drive, Friction
+
+
+@dataclass
+class ReferenceResult:
+    """Events [(time_s, kind)], phase-0 states (n+1, 4) [X_m, X_c, V_m, V_c] (SI), counts."""
+
+    events: list
+    poincare: np.ndarray
+    n_rhs: int
+    n_segments: int
+
+
+class _Sys:
+    def __init__(self, model: CapsuleModel, drive: Drive, friction: Friction):
+        self.m = model
+        self.d = drive
+        self.fr = friction
+        self.Mm = model.mass_magnet_kg
+        self.Mc = model.mass_capsule_kg
+        self.Pb, self.L0, self.Vmin = friction.levels()
+        self.law = friction.kind in ("eq22", "eq23", "law")
+        self.Om = 2 * math.pi * drive.frequency_Hz
+        self.T = 1.0 / drive.frequency_Hz
+        self.nrhs = 0
+
+    def level(self, V):
+        if not self.law:
+            return self.L0
+        if self.fr.literal:
+            return 1e-3 * (self.fr.a_mN * (abs(V) * 1e3) ** self.fr.n + self.fr.b_mN)
+        if abs(V) < self.Vmin:
+            return self.L0
+        return 1e-3 * (self.fr.a_mN * (abs(V) * 1e3) ** self.fr.n + self.fr.b_mN)
+
+    def fe(self, t):
+        if self.d.waveform == "harmonic":
+            return self.d.amplitude_N * math.cos(self.Om * t)
+        ph = t / self.T - math.floor(t / self.T + 1e-12)
+        return self.d.amplitude_N if ph < self.d.duty - 1e-12 else 0.0
+
+    def fi(self, contact, xr, vr):
+        m = self.m
+        F = m.spring_N_m * xr + m.damping_Ns_m * vr
+        if contact == 1:
+            F += m.constraint_N_m * (xr - m.gap_m) + m.constraint_damping_Ns_m * vr
+        elif contact == 2:
+            F += m.constraint_back_N_m * (xr + m.gap_back_m) + m.constraint_back_damping_Ns_m * vr
+        return F
+
+    def contact_of(self, xr):
+        if xr >= self.m.gap_m:
+            return 1
+        if self.m.double_sided and xr <= -self.m.gap_back_m:
+            return 2
+        return 0
+
+    def decide(self, contact, xr, vr, fe):
+        """Shell state at V_c = 0: 0 stick, +1/-1 slip direction; None if ill-posed."""
+        if math.isinf(self.Pb):
+            return 0
+        F = self.fi(contact, xr, vr)
+        tol = 1e-11 * max(self.d.amplitude_N, self.Pb, 1e-9)
+        if abs(F) < self.Pb - tol:
+            return 0
+        sgn = 1 if F > 0 else -1
+        if abs(F) <= self.Pb + tol:
+            # at the threshold: stick if F_i moves back inside (its rate with the shell held)
+            m = self.m
+            K = m.spring_N_m + (m.constraint_N_m if contact == 1 else 0) + (m.constraint_back_N_m if contact == 2 else 0)
+            C = m.damping_Ns_m + (m.constraint_damping_Ns_m if contact == 1 else 0) + \
+                (m.constraint_back_damping_Ns_m if contact == 2 else 0)
+            Fdot = K * vr + C * (fe - F) / self.Mm
+            if F * Fdot <= 0:
+                return 0
+        L0 = 1e-3 * self.fr.b_mN if (self.law and self.fr.literal) else self.L0
+        if abs(F) - L0 < -tol:
+            return None
+        return sgn
+
+    def rhs(self, contact, shell):
+        Mm, Mc = self.Mm, self.Mc
+
+        def f(t, y):
+            self.nrhs += 1
+            xr = y[0] - y[1]
+            vr = y[2] - y[3]
+            F = self.fi(contact, xr, vr)
+            fe = self.fe_seg(t)
+            am = (fe - F) / Mm
+            if shell == 0:
+                return np.array([y[2], 0.0, am, 0.0])
+            ac = (-shell * self.level(y[3]) + F) / Mc
+            return np.array([y[2], y[3], am, ac])
+        return f
+
+
+def reference_run(model: CapsuleModel, drive: Drive, friction: Friction, periods: int, state0=None,
+                  method: str = "DOP853", rtol: float = 1e-12, atol=None, max_segments: int = 10_000_000):
+    """Integrate ``periods`` excitation periods from ``state0`` = [x_r, v_r, X_c, V_c] (rest by default).
+
+    Returns :class:`ReferenceResult` with the event list (same kinds as the engine) and the
+    phase-0 states. atol defaults to [1e-15 m, 1e-15 m, 1e-12 m/s, 1e-12 m/s] x (rtol/1e-12).
+    """
+    S = _Sys(model, drive, friction)
+    if atol is None:
+        atol = np.array([1e-15, 1e-15, 1e-12, 1e-12]) * (rtol / 1e-12)
+    s0 = np.zeros(4) if state0 is None else np.asarray(state0, float)
+    y = np.array([s0[2] + s0[0], s0[2], s0[3] + s0[1], s0[3]])
+    T = S.T
+    contact = S.contact_of(y[0] - y[1])
+    t = 0.0
+    square = drive.waveform == "square"
+    if y[3] == 0.0:
+        shell = S.decide(contact, y[0] - y[1], y[2] - y[3], S.fe(0.0))
+        if shell is None:
+            raise RuntimeError("ill-posed friction law at t = 0")
+    else:
+        shell = 1 if y[3] > 0 else -1
+    events = []
+    poincare = [y.copy()]
+    nseg = 0
+    m = model
+    for n in range(periods):
+        bounds = [n * T + drive.duty * T, (n + 1) * T] if square else [(n + 1) * T]
+        for bi, tb in enumerate(bounds):
+            level_on = square and bi == 0
+            S.fe_seg = (lambda tt, lv=level_on: drive.amplitude_N if lv else 0.0) if square else \
+                (lambda tt: drive.amplitude_N * math.cos(S.Om * tt))
+            while t < tb:
+                nseg += 1
+                if nseg > max_segments:
+                    raise RuntimeError("too many segments (Zeno?)")
+                evs, kinds = [], []
+
+                def mk(fun, kind):
+                    fun.terminal = True
+                    fun.direction = -1
+                    evs.append(fun)
+                    kinds.append(kind)
+                G1, G2 = m.gap_m, m.gap_back_m
+                if contact == 0:
+                    mk(lambda tt, yy: G1 - (yy[0] - yy[1]), "front_contact_on")
+                    if m.double_sided:
+                        mk(lambda tt, yy: (yy[0] - yy[1]) + G2, "back_contact_on")
+                elif contact == 1:
+                    mk(lambda tt, yy: (yy[0] - yy[1]) - G1, "front_contact_off")
+                else:
+                    mk(lambda tt, yy: -G2 - (yy[0] - yy[1]), "back_contact_off")
+                c_ = contact
+                if shell == 0:
+                    if not math.isinf(S.Pb):
+                        mk(lambda tt, yy: S.Pb - S.fi(c_, yy[0] - yy[1], yy[2] - yy[3]), "break+")
+                        mk(lambda tt, yy: S.Pb + S.fi(c_, yy[0] - yy[1], yy[2] - yy[3]), "break-")
+                else:
+                    sh = shell
+                    mk(lambda tt, yy: sh * yy[3], "slip_end")
+                    if S.law and not friction.literal:
+                        vm = S.Vmin
+                        if abs(y[3]) < vm:
+                            mk(lambda tt, yy: vm - sh * yy[3], "vmin")
+                        else:
+                            mk(lambda tt, yy: sh * yy[3] - vm, "vmin")
+                sol = solve_ivp(S.rhs(contact, shell), (t, tb), y, method=method, rtol=rtol, atol=atol,
+                                events=evs, dense_output=False)
+                if sol.status == -1:
+                    raise RuntimeError(f"solve_ivp failed: {sol.message}")
+                hit = None
+                for i, te in enumerate(sol.t_events):
+                    if len(te):
+                        if hit is None or te[0] < sol.t_events[hit][0]:
+                            hit = i
+                if hit is None:
+                    t = tb
+                    y = sol.y[:, -1].copy()
+                    break
+                t = float(sol.t_events[hit][0])
+                y = sol.y_events[hit][0].copy()
+                kind = kinds[hit]
+                xr, vr = y[0] - y[1], y[2] - y[3]
+                fe = S.fe_seg(t)
+                if kind.endswith("contact_on") or kind.endswith("contact_off"):
+                    contact = {"front_contact_on": 1, "back_contact_on": 2}.get(kind, 0)
+                    events.append((t, kind))
+                    if shell == 0:
+                        new = S.decide(contact, xr, vr, fe)
+                    else:
+                        new = shell
+                elif kind.startswith("break"):
+                    new = S.decide(contact, xr, vr, fe)
+                elif kind == "slip_end":
+                    y[3] = 0.0
+                    new = S.decide(contact, xr, y[2], fe)
+                else:  # vmin: the law's kink, same mode
+                    new = shell
+                if new is None:
+                    raise RuntimeError(f"ill-posed friction law at t = {t}")
+                if new != shell:
+                    if new == 0:
+                        y[3] = 0.0
+                        events.append((t, "stick"))
+                    elif new == 1:
+                        events.append((t, "slip_forward"))
+                    else:
+                        events.append((t, "slip_backward"))
+                    if shell == 0:
+                        y[3] = 0.0
+                shell = new
+            if square and bi == 0:
+                events.append((tb, "drive_off"))
+        if square:
+            events.append(((n + 1) * T, "drive_on"))
+        poincare.append(y.copy())
+    return ReferenceResult(events=events, poincare=np.array(poincare), n_rhs=S.nrhs, n_segments=nseg)
