@@ -1,8 +1,194 @@
-"""Commands of the dynamics stage (placeholder until the stage lands)."""
+"""Commands of the dynamics stage: simulate, sweep, magnify, bench, dynamics-report."""
 from __future__ import annotations
 
+import json
+import math
+from pathlib import Path
+from typing import List, Optional
+
+import numpy as np
 import typer
+
+from ..errors import InputError
+from .common import QUIET
+
+FRICTION_HELP = ("shell friction (seed 000 eqs 21-23): coulomb (level --Pf-N), eq22 / eq23 (well-posed "
+                 "speed laws, add --literal for the law as written), fixed (P_f = inf)")
+
+
+def _parse_set(items: list[str] | None) -> dict[str, float]:
+    out = {}
+    for it in items or []:
+        if "=" not in it:
+            raise InputError(f"--set '{it}': expected NAME=VALUE (e.g. gap_mm=1.5)")
+        k, v = it.split("=", 1)
+        try:
+            out[k.strip()] = float(v)
+        except ValueError:
+            raise InputError(f"--set '{it}': value is not a number") from None
+    return out
+
+
+def _setup(model, set_, waveform, f_Hz, Pd_N, duty, friction, Pf_N, literal, v_min_mm_s):
+    from ..dynamics.model import Drive
+    from ..steps.dynamics import make_friction, resolve_model
+
+    m, pf_set = resolve_model(model, _parse_set(set_))
+    if friction == "coulomb" and Pf_N is None:
+        Pf_N = pf_set
+    fr = make_friction(friction, Pf_N, literal=literal, v_min_mm_s=v_min_mm_s)
+    d = Drive(amplitude_N=Pd_N, frequency_Hz=f_Hz, waveform=waveform, duty=duty).validate()
+    return m, d, fr
+
+
+MODEL_OPT = typer.Option("prototype_one_sided", "--model", help="parameter set in configs/params (name) or a YAML "
+                         "path with model-file names (mass_magnet_g, gap_mm, spring_N_m, ...)")
+SET_OPT = typer.Option(None, "--set", help="override a model parameter, NAME=VALUE in the unit of its suffix "
+                       "(e.g. gap_back_mm=0.2); repeatable")
+WAVE_OPT = typer.Option("harmonic", "--waveform", help="harmonic P_d cos(2 pi f t) or square (P_d for a duty fraction)")
+DUTY_OPT = typer.Option(0.5, "--duty", help="square-wave duty cycle D in (0, 1) [-]")
+FRIC_OPT = typer.Option("coulomb", "--friction", help=FRICTION_HELP)
+PF_OPT = typer.Option(None, "--Pf-N", help="Coulomb friction level P_f [N] (default: the parameter set's Pf_N)")
+LIT_OPT = typer.Option(False, "--literal", help="eq22/eq23 exactly as written (eq22 is ill-posed: the run stops "
+                       "with a clear error)")
+VMIN_OPT = typer.Option(None, "--v-min-mm-s", help="speed [mm/s] below which the speed law is held (default 0.2)")
 
 
 def register(app: typer.Typer) -> None:
     """Add this stage's commands to app."""
+
+    @app.command("simulate")
+    def simulate_cmd(
+        out: Path = typer.Option(..., "--out", "-o", help="output folder: trajectory.parquet, events.parquet, "
+                                 "periods.parquet, summary.json (written atomically)"),
+        f_Hz: float = typer.Option(30.0, "--f-Hz", help="drive frequency f [Hz]"),
+        Pd_N: float = typer.Option(0.15, "--Pd-N", help="drive amplitude P_d [N]"),
+        model: str = MODEL_OPT, set_: Optional[List[str]] = SET_OPT, waveform: str = WAVE_OPT,
+        duty: float = DUTY_OPT, friction: str = FRIC_OPT, Pf_N: Optional[float] = PF_OPT,
+        literal: bool = LIT_OPT, v_min_mm_s: Optional[float] = VMIN_OPT,
+        periods: int = typer.Option(50, "--periods", help="recorded drive periods [-]"),
+        transient_periods: int = typer.Option(0, "--transient-periods", help="periods run first, not recorded [-]"),
+        sample_rate_Hz: float = typer.Option(5000.0, "--sample-rate-Hz", help="trajectory sampling rate [Hz] "
+                                             "(0: no trajectory)"),
+        quiet: bool = QUIET,
+    ):
+        """One vibro-impact run (seed 000 eqs 19-23): trajectory, exact events, per-period table, energy balance."""
+        from ..steps.dynamics import simulate_to_dir
+
+        m, d, fr = _setup(model, set_, waveform, f_Hz, Pd_N, duty, friction, Pf_N, literal, v_min_mm_s)
+        s = simulate_to_dir(out, m, d, fr, periods, transient_periods, sample_rate_Hz, model_name=model)
+        if not quiet:
+            typer.echo(f"{out}: v = {s['average_velocity_mm_s']:.6g} mm/s, {s['impacts_per_period']} impacts/period, "
+                       f"A_f = {s['Af']:.4g}, energy residual {s['energy_balance']['relative_residual']:.1e}",
+                       err=True)
+
+    @app.command("sweep")
+    def sweep_cmd(
+        out: Path = typer.Option(..., "--out", "-o", help="output folder: points.parquet (one row per point), "
+                                 "sweep.parquet (Poincare rows per recorded period), sweep.json"),
+        param: str = typer.Option("f_Hz", "--param", help="swept parameter: f_Hz, Pd_N, Pf_N, duty or a model "
+                                  "parameter (gap_mm, spring_N_m, ...); unit from its suffix"),
+        start: float = typer.Option(..., "--start", help="first value, in the unit of --param's suffix (Hz for f_Hz, N for Pd_N and Pf_N, "
+                             "mm for gap_mm; dimensionless for duty)"),
+        stop: float = typer.Option(..., "--stop", help="last value, in the unit of --param's suffix (Hz for f_Hz, N for Pd_N and Pf_N, "
+                            "mm for gap_mm; dimensionless for duty)"),
+        num: int = typer.Option(50, "--num", help="number of points [-]"),
+        protocol: str = typer.Option("rest", "--protocol", help="rest (every point from rest, parallel), up / down "
+                                     "(continuation from the previous end state)"),
+        f_Hz: float = typer.Option(30.0, "--f-Hz", help="drive frequency f [Hz] (when not swept)"),
+        Pd_N: float = typer.Option(0.15, "--Pd-N", help="drive amplitude P_d [N] (when not swept)"),
+        model: str = MODEL_OPT, set_: Optional[List[str]] = SET_OPT, waveform: str = WAVE_OPT,
+        duty: float = DUTY_OPT, friction: str = FRIC_OPT, Pf_N: Optional[float] = PF_OPT,
+        literal: bool = LIT_OPT, v_min_mm_s: Optional[float] = VMIN_OPT,
+        transient_periods: int = typer.Option(300, "--transient-periods", help="periods discarded per point [-]"),
+        periods: int = typer.Option(50, "--periods", help="periods recorded per point [-]"),
+        label: str = typer.Option("", "--label", help="name of the sweep (stored in the provenance)"),
+        quiet: bool = QUIET,
+    ):
+        """Bifurcation / progression sweep over one parameter (Poincare points, velocity, impacts, A_f)."""
+        from ..progress import task
+        from ..steps.dynamics import sweep_to_dir
+
+        if num < 1:
+            raise InputError("--num must be >= 1")
+        m, d, fr = _setup(model, set_, waveform, f_Hz, Pd_N, duty, friction, Pf_N, literal, v_min_mm_s)
+        values = np.linspace(start, stop, num)
+        with task(f"sweep {param}", num, quiet) as advance:
+            meta = sweep_to_dir(out, m, d, fr, param, values, protocol, transient_periods, periods,
+                                model_name=model, label=label, progress=advance)
+        if not quiet:
+            typer.echo(f"{out}: {meta['n_points']} points ({protocol})", err=True)
+
+    @app.command("magnify")
+    def magnify_cmd(
+        out: Path = typer.Option(..., "--out", "-o", help="output Parquet file of A_f over (P_f, P_d, f)"),
+        Pd_start_N: float = typer.Option(0.01, "--Pd-start-N", help="first amplitude [N]"),
+        Pd_stop_N: float = typer.Option(0.5, "--Pd-stop-N", help="last amplitude [N]"),
+        Pd_num: int = typer.Option(20, "--Pd-num", help="number of amplitudes [-]"),
+        f_start_Hz: float = typer.Option(5.0, "--f-start-Hz", help="first frequency [Hz]"),
+        f_stop_Hz: float = typer.Option(40.0, "--f-stop-Hz", help="last frequency [Hz]"),
+        f_num: int = typer.Option(36, "--f-num", help="number of frequencies [-]"),
+        Pf_N: List[float] = typer.Option([0.007], "--Pf-N", help="Coulomb level(s) [N]; 'inf' = shell fixed; repeatable"),
+        protocol: str = typer.Option("rest", "--protocol", help="rest, or up/down continuation in f"),
+        model: str = MODEL_OPT, set_: Optional[List[str]] = SET_OPT,
+        transient_periods: int = typer.Option(200, "--transient-periods", help="periods discarded per point [-]"),
+        periods: int = typer.Option(30, "--periods", help="periods recorded per point [-]"),
+        figure: Optional[Path] = typer.Option(None, "--figure", help="also draw the maps to this PNG/PDF"),
+        quiet: bool = QUIET,
+    ):
+        """Magnification factor maps A_f = max|F_i|/P_d over (P_d, f) (seed 000 eq 24, Fig 19)."""
+        from ..plots.dynamics import magnify_figure
+        from ..progress import task
+        from ..steps.dynamics import MAGNIFY, magnify_table, resolve_model
+        from ..tables import provenance, write_table
+
+        m, _ = resolve_model(model, _parse_set(set_))
+        Pd = np.linspace(Pd_start_N, Pd_stop_N, Pd_num)
+        f = np.linspace(f_start_Hz, f_stop_Hz, f_num)
+        with task("magnify", len(Pf_N) * Pd_num, quiet) as advance:
+            df = magnify_table(m, Pd, f, Pf_N, protocol, transient_periods, periods, progress=advance)
+        prov = provenance(model_name=model, protocol=protocol, transient_periods=transient_periods, periods=periods)
+        write_table(df, out, MAGNIFY, prov)
+        if figure is not None:
+            magnify_figure(df, f"Magnification factor (seed 000 Fig 19), protocol: {protocol}", figure)
+        if not quiet:
+            typer.echo(f"{out}: max A_f = {df['Af'].max():.4g}", err=True)
+
+    @app.command("bench")
+    def bench_cmd(
+        json_out: bool = typer.Option(False, "--json", help="print the record as one JSON object on stdout"),
+        out: Optional[Path] = typer.Option(None, "--out", "-o", help="also write the JSON record to this file"),
+        engine_periods: int = typer.Option(5000, "--engine-periods", help="engine periods per frequency [-]"),
+        baseline_periods: int = typer.Option(10, "--baseline-periods", help="solve_ivp periods per frequency [-]"),
+        quiet: bool = QUIET,
+    ):
+        """Benchmark (contract section 6): the engine against scipy solve_ivp with events, same runs."""
+        from ..dynamics.bench import run_bench
+        from ..tables import _jsonable, write_json_atomic
+
+        rec = run_bench(engine_periods=engine_periods, baseline_periods=baseline_periods)
+        if out is not None:
+            write_json_atomic(out, rec)
+        if json_out:
+            typer.echo(json.dumps(_jsonable(rec)))
+        elif not quiet:
+            typer.echo(f"engine {rec['periods_per_s']:.4g} periods/s, baseline ({rec['baseline_method']}) "
+                       f"{rec['baseline_periods_per_s']:.4g} periods/s, speedup {rec['speedup']:.0f} "
+                       f"(impacting runs {rec['impacting_speedup']:.0f}); max event-time error "
+                       f"{rec['max_event_time_error_s']:.2e} s")
+
+    @app.command("dynamics-report")
+    def report_cmd(
+        out: Path = typer.Option(..., "--out", "-o", help="output folder: landmarks.parquet/.csv and figures"),
+        sweep: Optional[List[str]] = typer.Option(None, "--sweep", help="a frequency sweep as LABEL:FIGURE:PROTOCOL:DIR "
+                                                  "(FIGURE fig17 or fig18); repeatable"),
+        duty_sweep: Optional[List[str]] = typer.Option(None, "--duty-sweep", help="folder of a duty sweep at one "
+                                                       "frequency (square wave); repeatable"),
+        magnify: Optional[Path] = typer.Option(None, "--magnify", help="magnify Parquet table to draw"),
+        quiet: bool = QUIET,
+    ):
+        """Figures and the landmark table of the dynamics study (tables in, figures out)."""
+        from ..steps.dynamics import report
+        paths = report(out, sweep or [], duty_sweep or [], magnify)
+        if not quiet:
+            typer.echo(f"{out}: {len(paths)} files", err=True)

@@ -85,7 +85,6 @@ N_PERIOD_COLS = 12
 E_DRIVE, E_DAMP, E_CONTACT, E_FRIC, E_START, E_END = range(6)
 
 NB = 7
-DEBUG = False
 TWO_PI = 2.0 * math.pi
 EPS = 2.220446049250313e-16
 
@@ -695,18 +694,20 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
                     dgb = dot7(devc[e], B)
                     r = -1.0
                     if gb < 0.0:
-                        if ga[e] >= 0.0:
+                        if ga[e] > evtol[e] or (ta > 0.0 and ga[e] >= 0.0):
                             r = refine_root(evc[e], devc[e], ta, tb, s, sig, disc, w, Om, Bs)
-                        elif dga[e] > 0.0 and dgb < 0.0:
-                            # started a rounding error outside but moving inside: bracket from the maximum
-                            m = refine_root(devc[e], ddevc[e], ta, tb, s, sig, disc, w, Om, Bs)
-                            basis(m, s, sig, disc, w, Om, Bs)
-                            if dot7(evc[e], Bs) >= 0.0:
-                                r = refine_root(evc[e], devc[e], m, tb, s, sig, disc, w, Om, Bs)
-                            else:
-                                r = ta
                         else:
+                            # a mode start on the event surface (|g| at rounding level, maybe g' ~ 0
+                            # too, as at a Coulomb threshold): probe geometrically for the first point
+                            # clearly inside, then bracket the crossing from there; none -> a genuine
+                            # immediate exit.
                             r = ta
+                            for kk in range(48):
+                                tk = ta + (tb - ta) * 2.0 ** (kk - 47)
+                                basis(tk, s, sig, disc, w, Om, Bs)
+                                if dot7(evc[e], Bs) > evtol[e]:
+                                    r = refine_root(evc[e], devc[e], tk, tb, s, sig, disc, w, Om, Bs)
+                                    break
                     elif dga[e] < 0.0 and dgb > 0.0:
                         for j in range(NB):
                             negc[j] = -devc[e, j]
@@ -719,8 +720,6 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
                     if r >= 0.0 and r < best:
                         best = r
                         best_e = e
-                        if DEBUG:
-                            print('EV', period * T + s, evcode[e], r, ta, tb, gb, dgb, ga[e], dga[e], shell, contact)
                     ga[e] = gb
                     dga[e] = dgb
                 t_stop = tb if best_e < 0 else best

@@ -254,7 +254,7 @@ class EngineOptions:
 
     samples_per_fast_period: float = 12.0
     energy: bool = True
-    rk_rtol: float = 1e-10
+    rk_rtol: float = 1e-11
     zeno_max: int = 200
     rk_max_steps: int = 2_000_000
     extra: dict = field(default_factory=dict)

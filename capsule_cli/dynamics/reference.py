@@ -135,6 +135,7 @@ def reference_run(model: CapsuleModel, drive: Drive, friction: Friction, periods
             raise RuntimeError("ill-posed friction law at t = 0")
     else:
         shell = 1 if y[3] > 0 else -1
+    fast = False  # |V_c| above V_min (speed law branch) in the current slip
     events = []
     poincare = [y.copy()]
     nseg = 0
@@ -175,7 +176,7 @@ def reference_run(model: CapsuleModel, drive: Drive, friction: Friction, periods
                     mk(lambda tt, yy: sh * yy[3], "slip_end")
                     if S.law and not friction.literal:
                         vm = S.Vmin
-                        if abs(y[3]) < vm:
+                        if not fast:
                             mk(lambda tt, yy: vm - sh * yy[3], "vmin")
                         else:
                             mk(lambda tt, yy: sh * yy[3] - vm, "vmin")
@@ -208,12 +209,15 @@ def reference_run(model: CapsuleModel, drive: Drive, friction: Friction, periods
                     new = S.decide(contact, xr, vr, fe)
                 elif kind == "slip_end":
                     y[3] = 0.0
+                    fast = False
                     new = S.decide(contact, xr, y[2], fe)
-                else:  # vmin: the law's kink, same mode
+                else:  # vmin: the law's kink, same mode, other branch
                     new = shell
+                    fast = not fast
                 if new is None:
                     raise RuntimeError(f"ill-posed friction law at t = {t}")
                 if new != shell:
+                    fast = False
                     if new == 0:
                         y[3] = 0.0
                         events.append((t, "stick"))

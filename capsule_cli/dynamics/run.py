@@ -132,9 +132,10 @@ def simulate(model: CapsuleModel, drive: Drive, friction: Friction, periods: int
         "stick": sm[:, E.S_STICK] > 0.5,
         "Fi_N": sm[:, E.S_FI],
     })
+    names = np.array([""] + [E.EVENT_KIND_NAMES[k] for k in range(1, max(E.EVENT_KIND_NAMES) + 1)], dtype=object)
     evs = pd.DataFrame({
         "time_s": ev[:nev, 0],
-        "kind": pd.array([E.EVENT_KIND_NAMES[int(k)] for k in ev[:nev, 1]], dtype="string"),
+        "kind": pd.Categorical(names[ev[:nev, 1].astype(np.int64)], categories=list(names[1:])),
     })
     work = energy[E.E_DRIVE]
     diss = energy[E.E_DAMP] + energy[E.E_CONTACT] + energy[E.E_FRIC]

@@ -1,2 +1,133 @@
 # Rules of the dynamics stage (wiring only: every rule calls capsule-cli).
 # Appends its final outputs to DYNAMICS_TARGETS when config["dynamics"]["enabled"].
+# Settings: capsule_cli/schemas/dynamics.py (DynamicsStudy), validated as STUDY.dynamics.
+
+DYN = STUDY.dynamics
+DYN_DIR = f"{RESULTS}/dynamics"
+DYN_PKG = pkg("dynamics/engine.py", "dynamics/model.py", "dynamics/run.py", "dynamics/sweep.py",
+              "steps/dynamics.py", "cli/dynamics.py")
+DYN_CASES = {c.label: c for c in DYN.frequency_sweeps.cases}
+DYN_DUTY_F = [f"{f:g}" for f in DYN.duty_map.f_Hz]
+
+
+def _fric_args(kind, Pf_N):
+    return f"--friction {kind}" + (f" --Pf-N {Pf_N}" if kind == "coulomb" else "")
+
+
+rule dynamics_sweep_f:
+    """Frequency sweep for one friction case and protocol (seed 000 Figs 17-18)."""
+    input:
+        DYN_PKG,
+        params=str(CONFIGS / "params" / f"{DYN.frequency_sweeps.model}.yaml"),
+        laws=str(CONFIGS / "params" / "friction_laws_dynamics.yaml"),
+    output:
+        directory(f"{DYN_DIR}/sweeps/{{case}}_{{protocol}}"),
+    params:
+        fs=DYN.frequency_sweeps.model_dump(),
+        fric=lambda wc: _fric_args(DYN_CASES[wc.case].friction, DYN_CASES[wc.case].Pf_N),
+    log:
+        f"{DYN_DIR}/logs/sweep_{{case}}_{{protocol}}.log",
+    benchmark:
+        f"{DYN_DIR}/benchmarks/sweep_{{case}}_{{protocol}}.tsv"
+    wildcard_constraints:
+        protocol="rest|up|down",
+    shell:
+        "capsule-cli sweep --quiet --out {output} --model {params.fs[model]} --param f_Hz "
+        "--start {params.fs[f_start_Hz]} --stop {params.fs[f_stop_Hz]} --num {params.fs[f_num]} "
+        "--protocol {wildcards.protocol} --Pd-N {params.fs[Pd_N]} {params.fric} "
+        "--transient-periods {params.fs[transient_periods]} --periods {params.fs[recorded_periods]} "
+        "--label {wildcards.case} > {log} 2>&1"
+
+
+rule dynamics_sweep_duty:
+    """Duty sweep of the square-wave drive at one frequency (seed 004 Scenario 3)."""
+    input:
+        DYN_PKG,
+        params=str(CONFIGS / "params" / f"{DYN.duty_map.model}.yaml"),
+        laws=str(CONFIGS / "params" / "friction_laws_dynamics.yaml"),
+    output:
+        directory(f"{DYN_DIR}/duty/f{{f}}"),
+    params:
+        dm=DYN.duty_map.model_dump(),
+        fric=_fric_args(DYN.duty_map.friction, DYN.duty_map.Pf_N),
+    log:
+        f"{DYN_DIR}/logs/duty_f{{f}}.log",
+    benchmark:
+        f"{DYN_DIR}/benchmarks/duty_f{{f}}.tsv"
+    shell:
+        "capsule-cli sweep --quiet --out {output} --model {params.dm[model]} --waveform square --param duty "
+        "--start {params.dm[duty_start]} --stop {params.dm[duty_stop]} --num {params.dm[duty_num]} "
+        "--f-Hz {wildcards.f} --Pd-N {params.dm[Pd_N]} {params.fric} --protocol {params.dm[protocol]} "
+        "--transient-periods {params.dm[transient_periods]} --periods {params.dm[recorded_periods]} "
+        "--label duty_f{wildcards.f} > {log} 2>&1"
+
+
+rule dynamics_magnify:
+    """Magnification factor maps (seed 000 eq 24, Fig 19)."""
+    input:
+        DYN_PKG,
+        params=str(CONFIGS / "params" / f"{DYN.magnify.model}.yaml"),
+    output:
+        f"{DYN_DIR}/magnify.parquet",
+    params:
+        mg=DYN.magnify.model_dump(),
+        pf=" ".join(f"--Pf-N {p}" for p in DYN.magnify.Pf_N),
+    log:
+        f"{DYN_DIR}/logs/magnify.log",
+    benchmark:
+        f"{DYN_DIR}/benchmarks/magnify.tsv"
+    shell:
+        "capsule-cli magnify --quiet --out {output} --model {params.mg[model]} {params.pf} "
+        "--Pd-start-N {params.mg[Pd_start_N]} --Pd-stop-N {params.mg[Pd_stop_N]} --Pd-num {params.mg[Pd_num]} "
+        "--f-start-Hz {params.mg[f_start_Hz]} --f-stop-Hz {params.mg[f_stop_Hz]} --f-num {params.mg[f_num]} "
+        "--protocol {params.mg[protocol]} --transient-periods {params.mg[transient_periods]} "
+        "--periods {params.mg[recorded_periods]} > {log} 2>&1"
+
+
+DYN_SWEEPS = [(label, c.figure, prot) for label, c in DYN_CASES.items() for prot in DYN.frequency_sweeps.protocols]
+DYN_MAGNIFY = [f"{DYN_DIR}/magnify.parquet"] if DYN.magnify.enabled else []
+
+
+rule dynamics_report:
+    """Landmark table beside seed 000 section 5.3, Figs 17-18 per protocol, duty map, A_f maps."""
+    input:
+        sweeps=[f"{DYN_DIR}/sweeps/{l}_{p}" for l, _, p in DYN_SWEEPS],
+        duty=[f"{DYN_DIR}/duty/f{f}" for f in DYN_DUTY_F],
+        magnify=DYN_MAGNIFY,
+        code=pkg("plots/dynamics.py", "steps/dynamics.py"),
+    output:
+        landmarks=f"{DYN_DIR}/report/landmarks.parquet",
+        table=f"{DYN_DIR}/report/landmarks.md",
+        duty_map=f"{DYN_DIR}/report/duty_map.png",
+        duty_table=f"{DYN_DIR}/report/duty_map.md",
+        figs=[f"{DYN_DIR}/report/{fig}_{p}.png" for fig in sorted({c.figure for c in DYN_CASES.values()})
+              for p in DYN.frequency_sweeps.protocols],
+    params:
+        sweeps=" ".join(f"--sweep {l}:{fig}:{p}:{DYN_DIR}/sweeps/{l}_{p}" for l, fig, p in DYN_SWEEPS),
+        duty=" ".join(f"--duty-sweep {DYN_DIR}/duty/f{f}" for f in DYN_DUTY_F),
+        magnify=" ".join(f"--magnify {m}" for m in DYN_MAGNIFY),
+        outdir=f"{DYN_DIR}/report",
+    log:
+        f"{DYN_DIR}/logs/report.log",
+    shell:
+        "capsule-cli dynamics-report --quiet --out {params.outdir} {params.sweeps} {params.duty} {params.magnify} "
+        "> {log} 2>&1"
+
+
+rule dynamics_bench:
+    """Benchmark of the engine against solve_ivp (contract section 6)."""
+    input:
+        DYN_PKG,
+        pkg("dynamics/bench.py", "dynamics/reference.py"),
+    output:
+        f"{DYN_DIR}/bench.json",
+    log:
+        f"{DYN_DIR}/logs/bench.log",
+    shell:
+        "capsule-cli bench --quiet --out {output} > {log} 2>&1"
+
+
+if DYN.enabled:
+    DYNAMICS_TARGETS += rules.dynamics_report.output
+    if DYN.bench:
+        DYNAMICS_TARGETS += [f"{DYN_DIR}/bench.json"]

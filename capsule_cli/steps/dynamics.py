@@ -1,0 +1,383 @@
+"""Compose engine runs into tables: one run, sweeps, magnification maps, landmarks.
+
+Every table has a schema here; writing goes through :mod:`capsule_cli.tables` (atomic
+Parquet, units in field metadata, provenance in schema metadata).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..errors import InputError
+from ..tables import Column, TableSchema, provenance, write_json_atomic, write_table
+from ..dynamics.model import CapsuleModel, Drive, EngineOptions, Friction, friction_preset, load_model
+from ..dynamics.run import simulate
+from ..dynamics.sweep import run_sweep
+
+C = Column
+
+TRAJECTORY = TableSchema("dynamics_trajectory", "engine state sampled at a fixed rate (seed 000 eqs 19-21)", (
+    C("time_s", "float64", "time since the start of the run"),
+    C("magnet_mm", "float64", "magnet position X_m"),
+    C("capsule_mm", "float64", "capsule (shell) position X_c"),
+    C("magnet_velocity_mm_s", "float64", "magnet velocity V_m"),
+    C("capsule_velocity_mm_s", "float64", "capsule velocity V_c"),
+    C("relative_mm", "float64", "relative displacement X_r = X_m - X_c"),
+    C("contact", "int64", "contact state: 0 none, 1 front constraint, 2 back constraint", unit=""),
+    C("stick", "bool", "shell stuck (V_c = 0 held by static friction)", unit=""),
+    C("Fi_N", "float64", "interaction force F_i on the shell (eq 20)"),
+))
+EVENTS = TableSchema("dynamics_events", "exact event list of a run (root-found switching times)", (
+    C("time_s", "float64", "event time"),
+    C("kind", "string", "front/back_contact_on/off, stick, slip_forward, slip_backward, drive_on/off", unit=""),
+))
+PERIODS = TableSchema("dynamics_periods", "one row per recorded excitation period", (
+    C("period", "int64", "period index since the start (phase 0 at period * T)", unit=""),
+    C("time_s", "float64", "start time of the period"),
+    C("displacement_mm", "float64", "capsule displacement over the period"),
+    C("impacts", "int64", "front-constraint impacts in the period", unit=""),
+    C("back_impacts", "int64", "back-constraint impacts in the period", unit=""),
+    C("max_Fi_N", "float64", "max |F_i| in the period (located at its exact extremum)"),
+    C("max_Fi_time_s", "float64", "time of max |F_i|"),
+    C("relative_mm", "float64", "Poincare point: X_r at phase 0"),
+    C("relative_velocity_mm_s", "float64", "Poincare point: V_r at phase 0"),
+    C("capsule_velocity_mm_s", "float64", "V_c at phase 0"),
+    C("capsule_mm", "float64", "X_c at phase 0"),
+    C("stick_fraction", "float64", "fraction of the period with the shell stuck", unit=""),
+    C("stick_events", "int64", "slip-to-stick transitions in the period", unit=""),
+))
+SWEEP_POINTS = TableSchema("dynamics_sweep_points", "one row per sweep point", (
+    C("point", "int64", "index of the point in the value list", unit=""),
+    C("value", "float64", "swept parameter value (unit: the 'parameter' of the provenance)", unit="see provenance"),
+    C("f_Hz", "float64", "drive frequency of the point"),
+    C("velocity_mm_s", "float64", "average capsule velocity over the recorded periods"),
+    C("impacts_per_period", "float64", "mean front impacts per period", unit=""),
+    C("back_impacts_per_period", "float64", "mean back impacts per period", unit=""),
+    C("max_Fi_N", "float64", "max |F_i| over the recorded periods"),
+    C("Af", "float64", "magnification factor max|F_i| / P_d (seed 000 eq 24)", unit=""),
+    C("period_number", "int64", "period of the response in drive periods (0: none found up to 8)", unit=""),
+    C("stick_fraction", "float64", "mean stuck fraction", unit=""),
+    C("order", "int64", "position in the run order (continuation protocols)", unit=""),
+))
+SWEEP = TableSchema("dynamics_sweep", "one row per sweep point per recorded period (Poincare points)", (
+    C("point", "int64", "index of the point", unit=""),
+    C("value", "float64", "swept parameter value", unit="see provenance"),
+    C("period", "int64", "period index", unit=""),
+    C("relative_mm", "float64", "Poincare X_r at phase 0"),
+    C("relative_velocity_mm_s", "float64", "Poincare V_r at phase 0 (seed 000 Figs 17-18)"),
+    C("displacement_mm", "float64", "capsule displacement over the period"),
+    C("impacts", "int64", "front impacts in the period", unit=""),
+    C("max_Fi_N", "float64", "max |F_i| in the period"),
+    C("velocity_mm_s", "float64", "average velocity of the point"),
+    C("impacts_per_period", "float64", "mean impacts per period of the point", unit=""),
+    C("Af", "float64", "magnification factor of the point", unit=""),
+    C("period_number", "int64", "period of the point's response (0: none up to 8)", unit=""),
+))
+MAGNIFY = TableSchema("dynamics_magnify", "magnification factor A_f = max|F_i|/P_d over (P_d, f) (seed 000 eq 24)", (
+    C("Pf_N", "float64", "Coulomb friction level (inf: shell fixed)"),
+    C("Pd_N", "float64", "drive amplitude"),
+    C("f_Hz", "float64", "drive frequency"),
+    C("Af", "float64", "magnification factor", unit=""),
+    C("max_Fi_N", "float64", "max |F_i| over the recorded periods"),
+    C("impacts_per_period", "float64", "mean front impacts per period", unit=""),
+    C("velocity_mm_s", "float64", "average capsule velocity"),
+))
+LANDMARKS = TableSchema("dynamics_landmarks", "frequency landmarks found by the sweeps beside seed 000 section 5.3", (
+    C("case", "string", "friction case label", unit=""),
+    C("protocol", "string", "initial conditions of the sweep (rest/up/down)", unit=""),
+    C("landmark", "string", "what changes at this frequency", unit=""),
+    C("found_Hz", "float64", "frequency found by the sweep (NaN: not found in the range)"),
+    C("paper_Hz", "float64", "value reported by the paper (NaN: none)"),
+    C("difference_Hz", "float64", "found - paper"),
+    C("resolution_Hz", "float64", "frequency step of the sweep"),
+    C("paper_source", "string", "where the paper reports it", unit=""),
+))
+
+
+def make_friction(kind: str, Pf_N: float | None, literal: bool = False, v_min_mm_s: float | None = None) -> Friction:
+    """Return the friction model for a CLI/config choice."""
+    if kind == "coulomb" and Pf_N is None:
+        raise InputError("--friction coulomb needs --Pf-N (N)")
+    return friction_preset(kind, Pf_N, literal=literal, v_min_mm_s=v_min_mm_s)
+
+
+def resolve_model(model: str, overrides: dict[str, float] | None = None) -> tuple[CapsuleModel, float | None]:
+    """Return (model, P_f [N] of the set) from a parameter-set name or YAML path plus overrides."""
+    m, pf = load_model(model)
+    for name, value in (overrides or {}).items():
+        m = m.with_param(name, value)
+    return m, pf
+
+
+def _prov(**extra) -> dict:
+    return provenance(**{k: (asdict(v) if hasattr(v, "__dataclass_fields__") else v) for k, v in extra.items()})
+
+
+def simulate_to_dir(out: Path, model: CapsuleModel, drive: Drive, friction: Friction, periods: int,
+                    transient_periods: int, sample_rate_Hz: float, model_name: str = "",
+                    options: EngineOptions | None = None) -> dict:
+    """Run once; write trajectory, events, periods (Parquet) and summary.json under ``out``."""
+    res = simulate(model, drive, friction, periods=periods, transient_periods=transient_periods,
+                   sample_rate_Hz=sample_rate_Hz, options=options)
+    prov = _prov(model_name=model_name, model=model, drive=drive, friction=friction, periods=periods,
+                 transient_periods=transient_periods, sample_rate_Hz=sample_rate_Hz)
+    out = Path(out)
+    write_table(res.trajectory, out / "trajectory.parquet", TRAJECTORY, prov)
+    ev = res.events.copy()
+    ev["kind"] = ev["kind"].astype("string")
+    write_table(ev, out / "events.parquet", EVENTS, prov)
+    write_table(res.periods, out / "periods.parquet", PERIODS, prov)
+    per = res.periods
+    from ..dynamics.sweep import period_number
+    summary = {
+        "model": model_name, "drive": asdict(drive), "friction": asdict(friction),
+        "periods": periods, "transient_periods": transient_periods,
+        "average_velocity_mm_s": res.average_velocity_mm_s,
+        "impacts_per_period": float(per["impacts"].mean()) if len(per) else None,
+        "max_Fi_N": float(per["max_Fi_N"].max()) if len(per) else None,
+        "Af": float(per["max_Fi_N"].max() / drive.amplitude_N) if (len(per) and drive.amplitude_N > 0) else None,
+        "period_number": period_number(per["relative_mm"].to_numpy(), per["relative_velocity_mm_s"].to_numpy())
+        if len(per) else None,
+        "stick_fraction": float(per["stick_fraction"].mean()) if len(per) else None,
+        "n_events": int(len(res.events)),
+        "energy_balance": res.energy,
+        "final_state": {"relative_mm": res.final_state[0] * 1e3, "relative_velocity_mm_s": res.final_state[1] * 1e3,
+                        "capsule_mm": res.final_state[2] * 1e3, "capsule_velocity_mm_s": res.final_state[3] * 1e3},
+        "provenance": prov,
+    }
+    write_json_atomic(out / "summary.json", summary)
+    return summary
+
+
+def sweep_to_dir(out: Path, model: CapsuleModel, drive: Drive, friction: Friction, param: str, values,
+                 protocol: str, transient_periods: int, periods: int, model_name: str = "", label: str = "",
+                 progress=None) -> dict:
+    """Run a sweep; write ``points.parquet``, ``sweep.parquet`` (Poincare rows) and ``sweep.json``."""
+    res = run_sweep(model, drive, friction, param, values, protocol, transient_periods, periods, progress=progress)
+    prov = _prov(model_name=model_name, model=model, drive=drive, friction=friction, parameter=param,
+                 protocol=protocol, transient_periods=transient_periods, periods=periods, label=label)
+    out = Path(out)
+    write_table(res.points, out / "points.parquet", SWEEP_POINTS, prov)
+    write_table(res.poincare, out / "sweep.parquet", SWEEP, prov)
+    meta = {"parameter": param, "protocol": protocol, "label": label, "n_points": int(len(res.points)),
+            "transient_periods": transient_periods, "periods": periods, "provenance": prov}
+    write_json_atomic(out / "sweep.json", meta)
+    return meta
+
+
+def magnify_table(model: CapsuleModel, Pd_values, f_values, Pf_values, protocol: str, transient_periods: int,
+                  periods: int, progress=None) -> pd.DataFrame:
+    """Return A_f over (P_d, f) for each Coulomb level (continuation runs along f for up/down)."""
+    rows = []
+    for pf in Pf_values:
+        fr = friction_preset("fixed") if math.isinf(pf) else friction_preset("coulomb", float(pf))
+        for pd_ in Pd_values:
+            res = run_sweep(model, Drive(float(pd_), float(f_values[0])), fr, "f_Hz", f_values, protocol,
+                            transient_periods, periods)
+            p = res.points
+            rows.append(pd.DataFrame({"Pf_N": float(pf), "Pd_N": float(pd_), "f_Hz": p["value"], "Af": p["Af"],
+                                      "max_Fi_N": p["max_Fi_N"], "impacts_per_period": p["impacts_per_period"],
+                                      "velocity_mm_s": p["velocity_mm_s"]}))
+            if progress:
+                progress(1)
+    return pd.concat(rows, ignore_index=True)
+
+
+# ---------------------------------------------------------------------------
+# landmarks (seed 000 section 5.3; physics.md section 3)
+
+#: the paper's landmarks: figure -> [(landmark, Hz, source)]; NaN: the paper gives no number
+PAPER_LANDMARKS = {
+    "fig17": [("first grazing (impacts from here on)", 21.9, "seed 000 section 5.3 (Fig 17)"),
+              ("period-1 with two impacts begins", float("nan"),
+               "seed 000 section 5.3 (Fig 17: after the chaos windows, no value given)"),
+              ("two impacts -> one impact per period", 28.66, "seed 000 section 5.3 (Fig 17)"),
+              ("onset of forward progression", 31.76, "seed 000 section 5.3 (Fig 17)")],
+    "fig18": [("first grazing (impacts from here on)", float("nan"),
+               "none: P_d/k = 2.42 mm > G_1, impacts at every f (physics.md section 3)"),
+              ("period-1 with two impacts begins", 13.32,
+               "seed 000 section 5.3 (Fig 18: chaos -> period-1 with two impacts)"),
+              ("two impacts -> one impact per period", 23.4, "seed 000 section 5.3 (Fig 18)"),
+              ("onset of forward progression", 13.32,
+               "seed 000 section 5.3 (Fig 18: 'no significant forward progression until f = 13.32 Hz')")],
+}
+
+
+def _from_here_on(f: np.ndarray, ok: np.ndarray) -> float:
+    """Smallest f such that ``ok`` holds there and at every higher f (NaN if not at the top)."""
+    if len(ok) == 0 or not ok[-1]:
+        return float("nan")
+    i = len(ok) - 1
+    while i > 0 and ok[i - 1]:
+        i -= 1
+    return float(f[i])
+
+
+def _longest_run_start(f: np.ndarray, ok: np.ndarray) -> float:
+    """First f of the longest run of consecutive points where ``ok`` holds (NaN if none)."""
+    best_len, best_i, i = 0, -1, 0
+    while i < len(ok):
+        if ok[i]:
+            j = i
+            while j + 1 < len(ok) and ok[j + 1]:
+                j += 1
+            if j - i + 1 > best_len:
+                best_len, best_i = j - i + 1, i
+            i = j + 1
+        else:
+            i += 1
+    return float(f[best_i]) if best_i >= 0 else float("nan")
+
+
+def find_landmarks(points: pd.DataFrame, v_tol_mm_s: float = 1e-3) -> dict[str, float]:
+    """Return the frequency landmarks of a sweep over f (seed 000 section 5.3 wording).
+
+    * first grazing: the lowest f from which every higher f impacts, provided some lower f
+      does not (NaN when every point impacts, as with P_f = 2.5 N);
+    * period-1 with two impacts begins: first f of the longest run of period-1 responses
+      with two impacts per period;
+    * two -> one impact: the lowest f from which every higher f has exactly one impact per
+      period (NaN if no point has two or more);
+    * onset of forward progression: the lowest f from which every higher f has an average
+      velocity above ``v_tol_mm_s`` [mm/s].
+    """
+    p = points.sort_values("value")
+    f = p["value"].to_numpy()
+    imp = p["impacts_per_period"].to_numpy()
+    per1 = p["period_number"].to_numpy() == 1
+    first_grazing = _from_here_on(f, imp > 0) if (imp == 0).any() else float("nan")
+    return {
+        "first grazing (impacts from here on)": first_grazing,
+        "period-1 with two impacts begins": _longest_run_start(f, per1 & np.isclose(imp, 2.0)),
+        "two impacts -> one impact per period": _from_here_on(f, np.isclose(imp, 1.0)) if (imp >= 2).any()
+        else float("nan"),
+        "onset of forward progression": _from_here_on(f, p["velocity_mm_s"].to_numpy() > v_tol_mm_s),
+    }
+
+
+def landmark_table(sweeps: list[tuple[str, str, str, pd.DataFrame]]) -> pd.DataFrame:
+    """Return the landmarks of each (case label, figure, protocol, points) beside the paper's values."""
+    rows = []
+    for label, figure, protocol, points in sweeps:
+        found = find_landmarks(points)
+        vals = np.sort(points["value"].to_numpy())
+        res = float(np.min(np.diff(vals))) if len(vals) > 1 else float("nan")
+        for name, paper, src in PAPER_LANDMARKS[figure]:
+            got = found[name]
+            rows.append({"case": label, "protocol": protocol, "landmark": name, "found_Hz": got, "paper_Hz": paper,
+                         "difference_Hz": got - paper, "resolution_Hz": res, "paper_source": src})
+    return pd.DataFrame(rows)
+
+
+DUTY_MAP = TableSchema("dynamics_duty_map", "square-wave progression speed over (f, duty) (seed 004 Scenario 3)", (
+    C("f_Hz", "float64", "drive frequency"),
+    C("duty", "float64", "duty cycle D", unit=""),
+    C("velocity_mm_s", "float64", "average capsule velocity"),
+    C("impacts_per_period", "float64", "mean front impacts per period", unit=""),
+    C("back_impacts_per_period", "float64", "mean back impacts per period", unit=""),
+    C("period_number", "int64", "period of the response (0: none up to 8)", unit=""),
+))
+
+
+#: seed 004 section 6 (Scenario 3, FE model of the coated capsule, 1.2 N square wave)
+PAPER_DUTY_BEST = (30.0, 0.2)
+PAPER_DUTY_SOURCE = "seed 004 section 6: fastest at 30 Hz, duty 0.2; at 10 Hz the capsule vibrates in place"
+
+
+def duty_map_summary(dm: pd.DataFrame) -> str:
+    """Markdown: the map's fastest point and the lowest frequency's speeds beside seed 004 section 6."""
+    best = dm.loc[dm["velocity_mm_s"].idxmax()]
+    f_lo = dm["f_Hz"].min()
+    lo = dm[dm["f_Hz"] == f_lo]["velocity_mm_s"]
+    at_paper = dm[np.isclose(dm["f_Hz"], PAPER_DUTY_BEST[0]) & np.isclose(dm["duty"], PAPER_DUTY_BEST[1])]
+    v_paper = f"{at_paper['velocity_mm_s'].iloc[0]:.3g} mm/s" if len(at_paper) else "not on the grid"
+    rows = [
+        "| quantity | this model | seed 004 (FE) |",
+        "| --- | --- | --- |",
+        f"| fastest (f, duty) | {best['f_Hz']:g} Hz, {best['duty']:.3g} ({best['velocity_mm_s']:.3g} mm/s) | "
+        f"{PAPER_DUTY_BEST[0]:g} Hz, {PAPER_DUTY_BEST[1]:g} |",
+        f"| speed at the paper's fastest point | {v_paper} | the fastest of its grid |",
+        f"| speeds at {f_lo:g} Hz | {lo.min():.3g} to {lo.max():.3g} mm/s | about 0 (vibrates in place) |",
+    ]
+    note = ("\nSource: " + PAPER_DUTY_SOURCE + ". The paper's numbers come from a 3D FE model of a coated, "
+            "soft capsule in a compliant intestine; this map is the rigid-substrate two-mass model with the "
+            "assumed gap split of configs/params/prototype_double_sided.yaml, so differences are expected.\n")
+    return "\n".join(rows) + "\n" + note
+
+
+def report(out: Path, sweeps: list[str], duty_sweeps: list[str], magnify: Path | None) -> list[Path]:
+    """Write the landmark table and the figures of the dynamics study from sweep folders."""
+    import json
+
+    from ..plots import dynamics as P
+    from ..tables import read_table, write_text_atomic
+
+    out = Path(out)
+    written: list[Path] = []
+    parsed = []
+    for spec in sweeps:
+        parts = spec.split(":", 3)
+        if len(parts) != 4 or parts[1] not in PAPER_LANDMARKS:
+            raise InputError(f"--sweep '{spec}': expected LABEL:FIGURE:PROTOCOL:DIR with FIGURE fig17 or fig18")
+        label, fig, protocol, d = parts
+        meta = json.loads((Path(d) / "sweep.json").read_text()) if (Path(d) / "sweep.json").is_file() else {}
+        if meta and meta.get("parameter") != "f_Hz":
+            raise InputError(f"{d}: not a frequency sweep (parameter {meta.get('parameter')})")
+        parsed.append((label, fig, protocol, read_table(Path(d) / "points.parquet"), read_table(Path(d) / "sweep.parquet")))
+    if parsed:
+        lm = landmark_table([(lab, fig, prot, pts) for lab, fig, prot, pts, _ in parsed])
+        prov = provenance(sources=sweeps)
+        written.append(write_table(lm, out / "landmarks.parquet", LANDMARKS, prov))
+        lines = ["| case | protocol | landmark | found [Hz] | paper [Hz] | found - paper [Hz] | sweep step [Hz] |",
+                 "| --- | --- | --- | --- | --- | --- | --- |"]
+        for r in lm.itertuples():
+            fmt = (lambda x: "-" if not np.isfinite(x) else f"{x:.2f}")
+            lines.append(f"| {r.case} | {r.protocol} | {r.landmark} | {fmt(r.found_Hz)} | {fmt(r.paper_Hz)} | "
+                         f"{fmt(r.difference_Hz)} | {fmt(r.resolution_Hz)} |")
+        written.append(write_text_atomic(out / "landmarks.md", "\n".join(lines) + "\n"))
+        for fig in ("fig17", "fig18"):
+            for protocol in dict.fromkeys(p for _, fg, p, _, _ in parsed if fg == fig):
+                cases = [(lab, pts, poin) for lab, fg, prot, pts, poin in parsed if fg == fig and prot == protocol]
+                amps = sorted({pts.attrs.get("provenance", {}).get("drive", {}).get("amplitude_N") for _, pts, _ in cases}
+                              - {None})
+                amp = ", ".join(f"{a * 1e3:g}" for a in amps) or "?"
+                title = (f"$P_d$ = {amp} mN: {' vs '.join(lab for lab, _, _ in cases)} "
+                         f"(seed 000 Fig {fig[-2:]}, paper values dotted)")
+                lines_ = {name: hz for name, hz, _ in PAPER_LANDMARKS[fig]}
+                short = {"first grazing (impacts from here on)": "paper: grazing",
+                         "period-1 with two impacts begins": "paper: period-1, 2 impacts",
+                         "two impacts -> one impact per period": "paper: 2→1 impacts",
+                         "onset of forward progression": "paper: forward"}
+                written.append(P.bifurcation_figure(cases, protocol, title, out / f"{fig}_{protocol}.png",
+                                                    {short[k]: v for k, v in lines_.items()}))
+    if duty_sweeps:
+        rows = []
+        protocols = set()
+        for d in duty_sweeps:
+            pts = read_table(Path(d) / "points.parquet")
+            meta = json.loads((Path(d) / "sweep.json").read_text())
+            if meta.get("parameter") != "duty":
+                raise InputError(f"{d}: not a duty sweep (parameter {meta.get('parameter')})")
+            protocols.add(meta.get("protocol"))
+            rows.append(pd.DataFrame({"f_Hz": pts["f_Hz"], "duty": pts["value"], "velocity_mm_s": pts["velocity_mm_s"],
+                                      "impacts_per_period": pts["impacts_per_period"],
+                                      "back_impacts_per_period": pts["back_impacts_per_period"],
+                                      "period_number": pts["period_number"]}))
+        dm = pd.concat(rows, ignore_index=True).sort_values(["f_Hz", "duty"]).reset_index(drop=True)
+        written.append(write_table(dm, out / "duty_map.parquet", DUTY_MAP, provenance(sources=duty_sweeps)))
+        prot = "/".join(sorted(p for p in protocols if p))
+        Pd = read_table(Path(duty_sweeps[0]) / "points.parquet").attrs["provenance"].get("drive", {}).get("amplitude_N")
+        written.append(P.duty_map_figure(dm, f"Square wave $P_d$ = {Pd} N, double-sided model (seed 004 Scenario 3)\n"
+                                         f"protocol: {prot} ({P.PROTOCOL_TEXT.get(prot, prot)})",
+                                         out / "duty_map.png", paper_best=PAPER_DUTY_BEST))
+        written.append(write_text_atomic(out / "duty_map.md", duty_map_summary(dm)))
+    if magnify is not None:
+        df = read_table(magnify)
+        prot = df.attrs["provenance"].get("protocol", "?")
+        written.append(P.magnify_figure(df, f"Magnification factor $A_f$ (seed 000 Fig 19), protocol: {prot}",
+                                        out / "magnify.png"))
+    return written
