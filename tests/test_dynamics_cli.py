@@ -1,5 +1,6 @@
 """capsule-cli simulate / sweep / magnify / dynamics-report: files, units, exit codes (contract sections 2, 5)."""
 import json
+from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
@@ -56,7 +57,8 @@ def test_bad_input_exits_2_and_writes_nothing(tmp_path, args, capsys):
 def test_schema_defaults_validate():
     from capsule_cli.schemas.dynamics import DynamicsStudy
     s = DynamicsStudy()
-    assert {c.label for c in s.frequency_sweeps.cases} == {"coulomb_7p8mN", "eq22", "coulomb_2p5N", "eq23"}
+    assert {c.label for c in s.frequency_sweeps.cases} == {"coulomb_7p8mN", "eq22", "eq22_V_in_m_s",
+                                                             "coulomb_2p5N", "eq23", "eq23_V_in_m_s"}
     with pytest.raises(Exception):
         DynamicsStudy.model_validate({"frequency_sweep": {}})
 
@@ -84,3 +86,18 @@ def test_magnify_writes_table_and_figure(tmp_path):
     assert len(df) == 2 * 2 * 3 and set(df["Pf_N"]) == {0.007, float("inf")}
     assert (df["Af"] == df["max_Fi_N"] / df["Pd_N"]).all()
     assert fig.stat().st_size > 5000
+
+
+def test_contract_dynamics_model_file_runs_as_written(tmp_path):
+    """contract section 4: the progression model file is accepted as written; it is the seed 000
+    Table 2 model with P_f = 7.8 mN, so it must reproduce the parameter-set run exactly."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    common = ["--f-Hz", "35", "--periods", "5", "--transient-periods", "50", "--sample-rate-Hz", "0", "--quiet"]
+    assert main(["simulate", "--model", str(Path(__file__).resolve().parents[1] / "configs/models/progression_one_sided.yaml"), "--out", str(a)] + common) == 0
+    assert main(["simulate", "--model", "prototype_one_sided", "--out", str(b)] + common) == 0
+    sa = json.loads((a / "summary.json").read_text())
+    sb = json.loads((b / "summary.json").read_text())
+    assert sa["average_velocity_mm_s"] == sb["average_velocity_mm_s"] != 0.0
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("kind: progression\nbase: three_sided\neffects: []\nparams: {}\n")
+    assert main(["simulate", "--model", str(bad), "--out", str(tmp_path / "c"), "--quiet"]) == 2

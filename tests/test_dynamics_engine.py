@@ -265,3 +265,46 @@ def test_magnification_continuation_high_branch_fixed_shell(one_sided):
     assert rest["Af"].max() < 100.0
     bound = math.sqrt(model.constraint_N_m * model.mass_magnet_kg) / model.damping_Ns_m
     assert up["Af"].max() < bound
+
+
+def test_law_speed_unit_sensitivity_case_evaluates_V_in_m_s():
+    """--law-speed-unit m/s evaluates eq 22 as F[mN] = 8.778 V[m/s]^0.25 + 2.518 (docs/dynamics.md)."""
+    si = friction_preset("eq22", speed_unit="m/s")
+    mm = friction_preset("eq22")
+    assert si.kinetic_N(0.1) == pytest.approx(1e-3 * (8.778 * 0.1 ** 0.25 + 2.518), rel=1e-12)
+    assert mm.kinetic_N(0.1) == pytest.approx(1e-3 * (8.778 * 100.0 ** 0.25 + 2.518), rel=1e-12)
+    # breakaway: the law at V_min = 0.2 mm/s = 2e-4 m/s, above the static 2.5 mN
+    assert si.levels()[0] == pytest.approx(1e-3 * (8.778 * 2e-4 ** 0.25 + 2.518), rel=1e-12)
+    from capsule_cli.errors import InputError
+    with pytest.raises(InputError):
+        friction_preset("eq22", speed_unit="km/h")
+
+
+def test_random_parameter_sets_match_reference():
+    """Not tuned to Table 2: 12 random one/double-sided models, harmonic and square drives, Coulomb
+    or fixed shells (seeded). Same event sequence as the solve_ivp reference over 4 periods, event
+    times within 1e-9 s, energy residual below 1e-9 relative."""
+    rng = np.random.default_rng(20261121)
+    n_events = 0
+    for _ in range(12):
+        ds = rng.random() < 0.4
+        params = {"mass_magnet_g": rng.uniform(0.5, 5), "mass_capsule_g": rng.uniform(0.5, 5),
+                  "gap_mm": rng.uniform(0.1, 3), "spring_N_m": rng.uniform(10, 200),
+                  "damping_Ns_m": rng.uniform(0.0, 0.05), "constraint_N_m": 10 ** rng.uniform(3, 4.5),
+                  "constraint_damping_Ns_m": rng.uniform(0, 0.3)}
+        if ds:
+            params.update({"gap_back_mm": rng.uniform(0.05, 2), "constraint_back_N_m": 10 ** rng.uniform(3, 4.5),
+                           "constraint_back_damping_Ns_m": rng.uniform(0, 0.3)})
+        model = CapsuleModel.from_params(params, double_sided=ds)
+        drive = Drive(10 ** rng.uniform(-2, 0), rng.uniform(2, 50), "square" if rng.random() < 0.4 else "harmonic",
+                      rng.uniform(0.1, 0.9))
+        fr = friction_preset("coulomb", 10 ** rng.uniform(-3, 0.5)) if rng.random() < 0.8 else friction_preset("fixed")
+        eng = simulate(model, drive, fr, periods=4)
+        ref = reference_run(model, drive, fr, 4)
+        ee = [(t, k) for t, k in zip(eng.events["time_s"], eng.events["kind"]) if not k.startswith("drive")]
+        rr = [(t, k) for t, k in ref.events if not k.startswith("drive")]
+        assert [k for _, k in ee] == [k for _, k in rr], (params, drive, fr)
+        assert max([abs(a - b) for (a, _), (b, _) in zip(ee, rr)] or [0.0]) < 1e-9
+        assert abs(eng.energy["relative_residual"]) < 1e-9
+        n_events += len(ee)
+    assert n_events > 100  # the cases exercise contacts and stick-slip, not just free flight

@@ -29,14 +29,14 @@ def _parse_set(items: list[str] | None) -> dict[str, float]:
     return out
 
 
-def _setup(model, set_, waveform, f_Hz, Pd_N, duty, friction, Pf_N, literal, v_min_mm_s):
+def _setup(model, set_, waveform, f_Hz, Pd_N, duty, friction, Pf_N, literal, v_min_mm_s, speed_unit="mm/s"):
     from ..dynamics.model import Drive
     from ..steps.dynamics import make_friction, resolve_model
 
     m, pf_set = resolve_model(model, _parse_set(set_))
     if friction == "coulomb" and Pf_N is None:
         Pf_N = pf_set
-    fr = make_friction(friction, Pf_N, literal=literal, v_min_mm_s=v_min_mm_s)
+    fr = make_friction(friction, Pf_N, literal=literal, v_min_mm_s=v_min_mm_s, speed_unit=speed_unit)
     d = Drive(amplitude_N=Pd_N, frequency_Hz=f_Hz, waveform=waveform, duty=duty).validate()
     return m, d, fr
 
@@ -51,6 +51,8 @@ FRIC_OPT = typer.Option("coulomb", "--friction", help=FRICTION_HELP)
 PF_OPT = typer.Option(None, "--Pf-N", help="Coulomb friction level P_f [N] (default: the parameter set's Pf_N)")
 LIT_OPT = typer.Option(False, "--literal", help="eq22/eq23 exactly as written (eq22 is ill-posed: the run stops "
                        "with a clear error)")
+UNIT_OPT = typer.Option("mm/s", "--law-speed-unit", help="unit V is taken in by the eq22/eq23 laws: mm/s (as "
+                        "fitted, physics.md) or m/s (sensitivity case: the law fed SI speeds, docs/dynamics.md)")
 VMIN_OPT = typer.Option(None, "--v-min-mm-s", help="speed [mm/s] below which the speed law is held (default 0.2)")
 
 
@@ -65,7 +67,7 @@ def register(app: typer.Typer) -> None:
         Pd_N: float = typer.Option(0.15, "--Pd-N", help="drive amplitude P_d [N]"),
         model: str = MODEL_OPT, set_: Optional[List[str]] = SET_OPT, waveform: str = WAVE_OPT,
         duty: float = DUTY_OPT, friction: str = FRIC_OPT, Pf_N: Optional[float] = PF_OPT,
-        literal: bool = LIT_OPT, v_min_mm_s: Optional[float] = VMIN_OPT,
+        literal: bool = LIT_OPT, v_min_mm_s: Optional[float] = VMIN_OPT, law_speed_unit: str = UNIT_OPT,
         periods: int = typer.Option(50, "--periods", help="recorded drive periods [-]"),
         transient_periods: int = typer.Option(0, "--transient-periods", help="periods run first, not recorded [-]"),
         sample_rate_Hz: float = typer.Option(5000.0, "--sample-rate-Hz", help="trajectory sampling rate [Hz] "
@@ -75,7 +77,8 @@ def register(app: typer.Typer) -> None:
         """One vibro-impact run (seed 000 eqs 19-23): trajectory, exact events, per-period table, energy balance."""
         from ..steps.dynamics import simulate_to_dir
 
-        m, d, fr = _setup(model, set_, waveform, f_Hz, Pd_N, duty, friction, Pf_N, literal, v_min_mm_s)
+        m, d, fr = _setup(model, set_, waveform, f_Hz, Pd_N, duty, friction, Pf_N, literal, v_min_mm_s,
+                          law_speed_unit)
         s = simulate_to_dir(out, m, d, fr, periods, transient_periods, sample_rate_Hz, model_name=model)
         if not quiet:
             typer.echo(f"{out}: v = {s['average_velocity_mm_s']:.6g} mm/s, {s['impacts_per_period']} impacts/period, "
@@ -99,7 +102,7 @@ def register(app: typer.Typer) -> None:
         Pd_N: float = typer.Option(0.15, "--Pd-N", help="drive amplitude P_d [N] (when not swept)"),
         model: str = MODEL_OPT, set_: Optional[List[str]] = SET_OPT, waveform: str = WAVE_OPT,
         duty: float = DUTY_OPT, friction: str = FRIC_OPT, Pf_N: Optional[float] = PF_OPT,
-        literal: bool = LIT_OPT, v_min_mm_s: Optional[float] = VMIN_OPT,
+        literal: bool = LIT_OPT, v_min_mm_s: Optional[float] = VMIN_OPT, law_speed_unit: str = UNIT_OPT,
         transient_periods: int = typer.Option(300, "--transient-periods", help="periods discarded per point [-]"),
         periods: int = typer.Option(50, "--periods", help="periods recorded per point [-]"),
         label: str = typer.Option("", "--label", help="name of the sweep (stored in the provenance)"),
@@ -111,7 +114,8 @@ def register(app: typer.Typer) -> None:
 
         if num < 1:
             raise InputError("--num must be >= 1")
-        m, d, fr = _setup(model, set_, waveform, f_Hz, Pd_N, duty, friction, Pf_N, literal, v_min_mm_s)
+        m, d, fr = _setup(model, set_, waveform, f_Hz, Pd_N, duty, friction, Pf_N, literal, v_min_mm_s,
+                          law_speed_unit)
         values = np.linspace(start, stop, num)
         with task(f"sweep {param}", num, quiet) as advance:
             meta = sweep_to_dir(out, m, d, fr, param, values, protocol, transient_periods, periods,
@@ -158,8 +162,10 @@ def register(app: typer.Typer) -> None:
     def bench_cmd(
         json_out: bool = typer.Option(False, "--json", help="print the record as one JSON object on stdout"),
         out: Optional[Path] = typer.Option(None, "--out", "-o", help="also write the JSON record to this file"),
-        engine_periods: int = typer.Option(5000, "--engine-periods", help="engine periods per frequency [-]"),
-        baseline_periods: int = typer.Option(10, "--baseline-periods", help="solve_ivp periods per frequency [-]"),
+        engine_periods: int = typer.Option(5000, "--engine-periods", help="periods of the engine's long-run "
+                                            "throughput per frequency [-]"),
+        baseline_periods: int = typer.Option(60, "--baseline-periods", help="periods from rest per frequency of the "
+                                              "timed runs, the same for solve_ivp and the engine [-]"),
         quiet: bool = QUIET,
     ):
         """Benchmark (contract section 6): the engine against scipy solve_ivp with events, same runs."""

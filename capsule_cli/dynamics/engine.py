@@ -727,7 +727,12 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
                 if recording:
                     Fb = dot7(cF, B)
                     dFb = dot7(dcF, B)
-                    if (dFa > 0.0 and dFb < 0.0) or (dFa < 0.0 and dFb > 0.0):
+                    # an extremum of F_i inside the cell; refined only if it can beat maxF: with F'
+                    # monotone across a cell (1/NPER of the fastest period) |F(m)| <= |F_a| + |F'_a| h
+                    # and <= |F_b| + |F'_b| h
+                    hc = tb - ta
+                    if ((dFa > 0.0 and dFb < 0.0) or (dFa < 0.0 and dFb > 0.0)) and \
+                            min(abs(Fa) + abs(dFa) * hc, abs(Fb) + abs(dFb) * hc) > maxF:
                         if dFa > 0.0:
                             m = refine_root(dcF, ddcF, ta, tb, s, sig, disc, w, Om, Bs)
                         else:

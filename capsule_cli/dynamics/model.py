@@ -92,11 +92,49 @@ class CapsuleModel:
         return replace(self, **{MODEL_PARAM_NAMES[name]: float(to_si(value, name))}).validate()
 
 
+#: parameter set behind each dynamics base model of a model file (contract section 4)
+BASE_PARAM_SETS = {"one_sided": "prototype_one_sided", "double_sided": "prototype_double_sided"}
+
+
+def _is_model_file(name: str) -> bool:
+    from pathlib import Path
+    path = Path(name)
+    if path.suffix not in (".yaml", ".yml") or not path.is_file():
+        return False
+    from ..config import read_yaml
+    data = read_yaml(path)
+    return isinstance(data, dict) and "kind" in data and "base" in data
+
+
 def load_model(name: str = "prototype_one_sided") -> tuple[CapsuleModel, float | None]:
-    """Return (model, P_f [N] or None) from ``configs/params/<name>.yaml`` or a path."""
-    params = load_param_set(name)
-    pf = params.get("Pf_N")
-    return CapsuleModel.from_params(params, where=str(name)), (None if pf is None else float(pf))
+    """Return (model, P_f [N] or None) from ``configs/params/<name>.yaml``, a parameter-set path,
+    or a dynamics model file (contract section 4: kind progression/trajectory, base one_sided or
+    double_sided; the base's parameter set overridden by the file's params, free or fixed, at
+    their values)."""
+    if _is_model_file(name):
+        from ..config import load_model_file
+        mf = load_model_file(name)
+        if mf.kind not in ("progression", "trajectory"):
+            raise InputError(f"{name}: kind '{mf.kind}' is not a dynamics model (progression or trajectory)")
+        if mf.base not in BASE_PARAM_SETS:
+            raise InputError(f"{name}: base '{mf.base}' is not a dynamics base model "
+                             f"({', '.join(BASE_PARAM_SETS)})")
+        if mf.effects:
+            raise InputError(f"{name}: effects {mf.effects} on a dynamics model are not supported by this command; "
+                             "simulate and sweep run the base model")
+        params = dict(load_param_set(BASE_PARAM_SETS[mf.base]))
+        for key, val in mf.params.items():
+            params[key] = float(val if isinstance(val, (int, float)) else val.value)
+        where = str(name)
+        double_sided = mf.base == "double_sided"
+    else:
+        params = load_param_set(name)
+        where = str(name)
+        double_sided = None
+    pf = params.pop("Pf_N", None)
+    model = CapsuleModel.from_params({**params, **({} if pf is None else {"Pf_N": pf})}, double_sided=double_sided,
+                                     where=where)
+    return model, (None if pf is None else float(pf))
 
 
 @dataclass(frozen=True)
@@ -141,6 +179,17 @@ class Friction:
     b_mN: float = 0.0
     v_min_mm_s: float = 0.2
     literal: bool = False
+    speed_unit: str = "mm/s"
+
+    @property
+    def a_mm_s(self) -> float:
+        """Coefficient a [mN] of the law written with V in mm/s.
+
+        ``speed_unit = 'm/s'`` evaluates the law as if V were in m/s (a V[m/s]^n + b): a
+        sensitivity case for the hypothesis that seed 000's simulation fed SI speeds to a law fitted
+        in mm/s (docs/dynamics.md); the default 'mm/s' is the reading of physics.md section 3.
+        """
+        return self.a_mN * (1e-3 ** self.n if self.speed_unit == "m/s" else 1.0)
 
     def validate(self) -> "Friction":
         if self.kind not in ("coulomb", "eq22", "eq23", "fixed", "law"):
@@ -149,6 +198,8 @@ class Friction:
             if not self.level_N > 0:
                 raise InputError(f"friction level P_f must be > 0 N (use --friction fixed for P_f = inf), "
                                  f"got {self.level_N}")
+        if self.speed_unit not in ("mm/s", "m/s"):
+            raise InputError(f"law speed unit must be 'mm/s' or 'm/s', got '{self.speed_unit}'")
         if self.kind in ("eq22", "eq23", "law"):
             if not self.v_min_mm_s >= 0:
                 raise InputError(f"V_min must be >= 0 mm/s, got {self.v_min_mm_s}")
@@ -166,7 +217,7 @@ class Friction:
         vmm = v * 1e3
         if not self.literal:
             vmm = np.maximum(vmm, self.v_min_mm_s)
-        return 1e-3 * (self.a_mN * vmm ** self.n + self.b_mN)
+        return 1e-3 * (self.a_mm_s * vmm ** self.n + self.b_mN)
 
     def levels(self) -> tuple[float, float, float]:
         """Return (breakaway P_b [N], kinetic level below V_min L0 [N], V_min [m/s])."""
@@ -178,16 +229,17 @@ class Friction:
         static = self.static_N if self.static_N is not None else 0.0
         if self.literal:
             return static, 1e-3 * self.b_mN, 0.0
-        l0 = 1e-3 * (self.a_mN * self.v_min_mm_s ** self.n + self.b_mN)
+        l0 = 1e-3 * (self.a_mm_s * self.v_min_mm_s ** self.n + self.b_mN)
         return max(static, l0), l0, self.v_min_mm_s * 1e-3
 
 
 def friction_preset(kind: str, level_N: float | None = None, literal: bool = False,
-                    v_min_mm_s: float | None = None, laws: dict[str, float] | None = None) -> Friction:
+                    v_min_mm_s: float | None = None, laws: dict[str, float] | None = None,
+                    speed_unit: str = "mm/s") -> Friction:
     """Return a friction model by name: coulomb (level P_f), eq22, eq23, fixed.
 
     The eq 22/23 coefficients come from ``configs/params/friction_laws_dynamics.yaml``
-    (seed 000 eqs 17-18, 22-23).
+    (seed 000 eqs 17-18, 22-23); ``speed_unit`` is the unit V is taken in (see Friction.a_mm_s).
     """
     if kind == "fixed":
         return Friction(kind="fixed").validate()
@@ -204,7 +256,7 @@ def friction_preset(kind: str, level_N: float | None = None, literal: bool = Fal
     vmin = L["v_min_mm_s"] if v_min_mm_s is None else v_min_mm_s
     return Friction(kind=kind, static_N=L[f"{pre}_static_mN"] * 1e-3, a_mN=L[f"{pre}_a_mN"],
                     n=L[f"{pre}_n"], b_mN=L[f"{pre}_b_mN"], v_min_mm_s=float(vmin),
-                    literal=literal).validate()
+                    literal=literal, speed_unit=speed_unit).validate()
 
 
 def pack_params(model: CapsuleModel, drive: Drive, friction: Friction) -> np.ndarray:
@@ -233,7 +285,7 @@ def pack_params(model: CapsuleModel, drive: Drive, friction: Friction) -> np.nda
     p[E.I_LAW] = 1.0 if speed_law else 0.0
     if speed_law:
         # F = 1e-3 [a (1e3 V)^n + b]  with V in m/s, F in N
-        p[E.I_LA] = 1e-3 * friction.a_mN * 1e3 ** friction.n
+        p[E.I_LA] = 1e-3 * friction.a_mm_s * 1e3 ** friction.n
         p[E.I_LN] = friction.n
         p[E.I_LB] = 1e-3 * friction.b_mN
     mu = model.mass_magnet_kg * model.mass_capsule_kg / (model.mass_magnet_kg + model.mass_capsule_kg)
@@ -252,7 +304,7 @@ class EngineOptions:
     period), energy (accumulate the energy balance), rk_rtol (fast-slip DOPRI5), zeno_max
     (zero-length events tolerated in a row), rk_max_steps (per segment)."""
 
-    samples_per_fast_period: float = 12.0
+    samples_per_fast_period: float = 8.0
     energy: bool = True
     rk_rtol: float = 1e-11
     zeno_max: int = 200

@@ -46,10 +46,10 @@ class _Sys:
         if not self.law:
             return self.L0
         if self.fr.literal:
-            return 1e-3 * (self.fr.a_mN * (abs(V) * 1e3) ** self.fr.n + self.fr.b_mN)
+            return 1e-3 * (self.fr.a_mm_s * (abs(V) * 1e3) ** self.fr.n + self.fr.b_mN)
         if abs(V) < self.Vmin:
             return self.L0
-        return 1e-3 * (self.fr.a_mN * (abs(V) * 1e3) ** self.fr.n + self.fr.b_mN)
+        return 1e-3 * (self.fr.a_mm_s * (abs(V) * 1e3) ** self.fr.n + self.fr.b_mN)
 
     def fe(self, t):
         if self.d.waveform == "harmonic":
@@ -114,13 +114,29 @@ class _Sys:
 
 
 def reference_run(model: CapsuleModel, drive: Drive, friction: Friction, periods: int, state0=None,
-                  method: str = "DOP853", rtol: float = 1e-12, atol=None, max_segments: int = 10_000_000):
+                  method: str = "DOP853", rtol: float = 1e-12, atol=None, max_segments: int = 10_000_000,
+                  steps_per_period: float = 16.0):
     """Integrate ``periods`` excitation periods from ``state0`` = [x_r, v_r, X_c, V_c] (rest by default).
 
     Returns :class:`ReferenceResult` with the event list (same kinds as the engine) and the
     phase-0 states. atol defaults to [1e-15 m, 1e-15 m, 1e-12 m/s, 1e-12 m/s] x (rtol/1e-12).
+
+    solve_ivp only sees an event when its function changes sign between two steps, so a
+    high-order method taking long steps in free flight can step over a whole contact. The step
+    is capped at 1/``steps_per_period`` of the fastest period of the current contact state
+    (relative oscillator of the reduced mass with the contact stiffness, or the drive period if
+    shorter). A segment starts on the surface it
+    just crossed (event function ~0 of either sign), so its first step is short (1e-4 of the
+    cap): otherwise a whole excursion and the next crossing can fit in one step whose two ends
+    lie on the same side.
     """
     S = _Sys(model, drive, friction)
+    mu = S.Mm * S.Mc / (S.Mm + S.Mc)
+
+    def max_step_of(contact_state):
+        K = model.spring_N_m + (model.constraint_N_m if contact_state == 1 else 0.0) + \
+            (model.constraint_back_N_m if contact_state == 2 else 0.0)
+        return 2 * math.pi / max(math.sqrt(K / mu), S.Om) / steps_per_period
     if atol is None:
         atol = np.array([1e-15, 1e-15, 1e-12, 1e-12]) * (rtol / 1e-12)
     s0 = np.zeros(4) if state0 is None else np.asarray(state0, float)
@@ -180,7 +196,9 @@ def reference_run(model: CapsuleModel, drive: Drive, friction: Friction, periods
                             mk(lambda tt, yy: vm - sh * yy[3], "vmin")
                         else:
                             mk(lambda tt, yy: sh * yy[3] - vm, "vmin")
-                sol = solve_ivp(S.rhs(contact, shell), (t, tb), y, method=method, rtol=rtol, atol=atol,
+                max_step = max_step_of(contact)
+                sol = solve_ivp(S.rhs(contact, shell), (t, tb), y, method=method, rtol=rtol, atol=atol, max_step=max_step,
+                                first_step=min(max_step * 1e-4, max(tb - t, 1e-300)),
                                 events=evs, dense_output=False)
                 if sol.status == -1:
                     raise RuntimeError(f"solve_ivp failed: {sol.message}")

@@ -22,6 +22,8 @@ class FrictionCase(Strict):
     friction: FrictionKind = Field(description="coulomb (level Pf_N), eq22, eq23 (well-posed laws) or fixed (P_f = inf)")
     Pf_N: float | None = Field(default=None, description="Coulomb level P_f [N] (coulomb only)")
     figure: Literal["fig17", "fig18"] = Field(description="which figure of seed 000 the case belongs to")
+    law_speed_unit: Literal["mm/s", "m/s"] = Field(default="mm/s", description="unit V is taken in by eq22/eq23: "
+                                                   "mm/s as fitted (physics.md), m/s a sensitivity case")
 
 
 class FrequencySweep(Strict):
@@ -39,8 +41,10 @@ class FrequencySweep(Strict):
     cases: list[FrictionCase] = Field(default_factory=lambda: [
         FrictionCase(label="coulomb_7p8mN", friction="coulomb", Pf_N=0.0078, figure="fig17"),
         FrictionCase(label="eq22", friction="eq22", figure="fig17"),
+        FrictionCase(label="eq22_V_in_m_s", friction="eq22", figure="fig17", law_speed_unit="m/s"),
         FrictionCase(label="coulomb_2p5N", friction="coulomb", Pf_N=2.5, figure="fig18"),
         FrictionCase(label="eq23", friction="eq23", figure="fig18"),
+        FrictionCase(label="eq23_V_in_m_s", friction="eq23", figure="fig18", law_speed_unit="m/s"),
     ], description="friction cases (one sweep per case and protocol)")
 
     @field_validator("cases")

@@ -98,11 +98,14 @@ LANDMARKS = TableSchema("dynamics_landmarks", "frequency landmarks found by the 
 ))
 
 
-def make_friction(kind: str, Pf_N: float | None, literal: bool = False, v_min_mm_s: float | None = None) -> Friction:
+def make_friction(kind: str, Pf_N: float | None, literal: bool = False, v_min_mm_s: float | None = None,
+                  speed_unit: str = "mm/s") -> Friction:
     """Return the friction model for a CLI/config choice."""
     if kind == "coulomb" and Pf_N is None:
         raise InputError("--friction coulomb needs --Pf-N (N)")
-    return friction_preset(kind, Pf_N, literal=literal, v_min_mm_s=v_min_mm_s)
+    if speed_unit != "mm/s" and kind not in ("eq22", "eq23"):
+        raise InputError("--law-speed-unit applies to the speed laws eq22 and eq23 only")
+    return friction_preset(kind, Pf_N, literal=literal, v_min_mm_s=v_min_mm_s, speed_unit=speed_unit)
 
 
 def resolve_model(model: str, overrides: dict[str, float] | None = None) -> tuple[CapsuleModel, float | None]:

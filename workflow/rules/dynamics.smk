@@ -10,8 +10,9 @@ DYN_CASES = {c.label: c for c in DYN.frequency_sweeps.cases}
 DYN_DUTY_F = [f"{f:g}" for f in DYN.duty_map.f_Hz]
 
 
-def _fric_args(kind, Pf_N):
-    return f"--friction {kind}" + (f" --Pf-N {Pf_N}" if kind == "coulomb" else "")
+def _fric_args(kind, Pf_N, speed_unit="mm/s"):
+    return (f"--friction {kind}" + (f" --Pf-N {Pf_N}" if kind == "coulomb" else "")
+            + (f" --law-speed-unit {speed_unit}" if speed_unit != "mm/s" else ""))
 
 
 rule dynamics_sweep_f:
@@ -24,7 +25,8 @@ rule dynamics_sweep_f:
         directory(f"{DYN_DIR}/sweeps/{{case}}_{{protocol}}"),
     params:
         fs=DYN.frequency_sweeps.model_dump(),
-        fric=lambda wc: _fric_args(DYN_CASES[wc.case].friction, DYN_CASES[wc.case].Pf_N),
+        fric=lambda wc: _fric_args(DYN_CASES[wc.case].friction, DYN_CASES[wc.case].Pf_N,
+                                   DYN_CASES[wc.case].law_speed_unit),
     log:
         f"{DYN_DIR}/logs/sweep_{{case}}_{{protocol}}.log",
     benchmark:
