@@ -308,3 +308,26 @@ def test_random_parameter_sets_match_reference():
         assert abs(eng.energy["relative_residual"]) < 1e-9
         n_events += len(ee)
     assert n_events > 100  # the cases exercise contacts and stick-slip, not just free flight
+
+
+def test_distinct_static_and_kinetic_coulomb_levels_match_reference(one_sided):
+    """Static 20 mN > kinetic 10 mN (set-valued law with two levels): same events as the reference;
+    a static level below the kinetic one is held at the kinetic level (well posed) unless literal."""
+    model, _ = one_sided
+    fr = friction_preset("coulomb", 0.01, static_N=0.02)
+    eng, ev = _compare(model, Drive(0.15, 25.0), fr, 6, 1e-9)
+    assert {"stick", "slip_forward", "slip_backward"} <= {k for _, k in ev}
+    assert friction_preset("coulomb", 0.01, static_N=0.005).levels()[0] == 0.01
+    with pytest.raises(DynamicsError, match="ill-posed"):
+        simulate(model, Drive(0.15, 25.0), friction_preset("coulomb", 0.01, static_N=0.005, literal=True), periods=5)
+
+
+def test_fixed_initial_condition_of_a_sweep(one_sided):
+    """A sweep from a given state: with no transient, the first Poincare point is that state."""
+    model, pf = one_sided
+    s0 = [1.0e-3, 0.2, -0.05]
+    res = run_sweep(model, Drive(0.15, 30.0), friction_preset("coulomb", pf), "f_Hz", [30.0, 31.0], "rest", 0, 3,
+                    state0=s0).poincare
+    first = res[res["period"] == 0]
+    np.testing.assert_allclose(first["relative_mm"], 1.0, rtol=1e-12)
+    np.testing.assert_allclose(first["relative_velocity_mm_s"], 200.0, rtol=1e-12)

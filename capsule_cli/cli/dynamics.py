@@ -29,16 +29,29 @@ def _parse_set(items: list[str] | None) -> dict[str, float]:
     return out
 
 
-def _setup(model, set_, waveform, f_Hz, Pd_N, duty, friction, Pf_N, literal, v_min_mm_s, speed_unit="mm/s"):
+def _setup(model, set_, waveform, f_Hz, Pd_N, duty, friction, Pf_N, literal, v_min_mm_s, speed_unit="mm/s",
+           static_N=None):
     from ..dynamics.model import Drive
     from ..steps.dynamics import make_friction, resolve_model
 
     m, pf_set = resolve_model(model, _parse_set(set_))
     if friction == "coulomb" and Pf_N is None:
         Pf_N = pf_set
-    fr = make_friction(friction, Pf_N, literal=literal, v_min_mm_s=v_min_mm_s, speed_unit=speed_unit)
+    fr = make_friction(friction, Pf_N, literal=literal, v_min_mm_s=v_min_mm_s, speed_unit=speed_unit,
+                       static_N=static_N)
     d = Drive(amplitude_N=Pd_N, frequency_Hz=f_Hz, waveform=waveform, duty=duty).validate()
     return m, d, fr
+
+
+def _parse_state(text: str) -> list[float]:
+    """'x_r_mm,v_r_mm_s,V_c_mm_s' -> [x_r, v_r, V_c] in SI (m, m/s, m/s)."""
+    try:
+        vals = [float(x) for x in text.split(",")]
+    except ValueError:
+        raise InputError(f"--initial-state '{text}': expected three numbers x_r_mm,v_r_mm_s,V_c_mm_s") from None
+    if len(vals) != 3 or not all(math.isfinite(v) for v in vals):
+        raise InputError(f"--initial-state '{text}': expected three finite numbers x_r_mm,v_r_mm_s,V_c_mm_s")
+    return [v * 1e-3 for v in vals]
 
 
 MODEL_OPT = typer.Option("prototype_one_sided", "--model", help="parameter set in configs/params (name) or a YAML "
@@ -51,6 +64,8 @@ FRIC_OPT = typer.Option("coulomb", "--friction", help=FRICTION_HELP)
 PF_OPT = typer.Option(None, "--Pf-N", help="Coulomb friction level P_f [N] (default: the parameter set's Pf_N)")
 LIT_OPT = typer.Option(False, "--literal", help="eq22/eq23 exactly as written (eq22 is ill-posed: the run stops "
                        "with a clear error)")
+STATIC_OPT = typer.Option(None, "--static-N", help="Coulomb breakaway (static) level [N] when it differs from the "
+                          "kinetic --Pf-N (held at least at --Pf-N unless --literal)")
 UNIT_OPT = typer.Option("mm/s", "--law-speed-unit", help="unit V is taken in by the eq22/eq23 laws: mm/s (as "
                         "fitted, physics.md) or m/s (sensitivity case: the law fed SI speeds, docs/dynamics.md)")
 VMIN_OPT = typer.Option(None, "--v-min-mm-s", help="speed [mm/s] below which the speed law is held (default 0.2)")
@@ -68,6 +83,7 @@ def register(app: typer.Typer) -> None:
         model: str = MODEL_OPT, set_: Optional[List[str]] = SET_OPT, waveform: str = WAVE_OPT,
         duty: float = DUTY_OPT, friction: str = FRIC_OPT, Pf_N: Optional[float] = PF_OPT,
         literal: bool = LIT_OPT, v_min_mm_s: Optional[float] = VMIN_OPT, law_speed_unit: str = UNIT_OPT,
+        static_N: Optional[float] = STATIC_OPT,
         periods: int = typer.Option(50, "--periods", help="recorded drive periods [-]"),
         transient_periods: int = typer.Option(0, "--transient-periods", help="periods run first, not recorded [-]"),
         sample_rate_Hz: float = typer.Option(5000.0, "--sample-rate-Hz", help="trajectory sampling rate [Hz] "
@@ -78,7 +94,7 @@ def register(app: typer.Typer) -> None:
         from ..steps.dynamics import simulate_to_dir
 
         m, d, fr = _setup(model, set_, waveform, f_Hz, Pd_N, duty, friction, Pf_N, literal, v_min_mm_s,
-                          law_speed_unit)
+                          law_speed_unit, static_N)
         s = simulate_to_dir(out, m, d, fr, periods, transient_periods, sample_rate_Hz, model_name=model)
         if not quiet:
             typer.echo(f"{out}: v = {s['average_velocity_mm_s']:.6g} mm/s, {s['impacts_per_period']} impacts/period, "
@@ -103,9 +119,13 @@ def register(app: typer.Typer) -> None:
         model: str = MODEL_OPT, set_: Optional[List[str]] = SET_OPT, waveform: str = WAVE_OPT,
         duty: float = DUTY_OPT, friction: str = FRIC_OPT, Pf_N: Optional[float] = PF_OPT,
         literal: bool = LIT_OPT, v_min_mm_s: Optional[float] = VMIN_OPT, law_speed_unit: str = UNIT_OPT,
+        static_N: Optional[float] = STATIC_OPT,
         transient_periods: int = typer.Option(300, "--transient-periods", help="periods discarded per point [-]"),
         periods: int = typer.Option(50, "--periods", help="periods recorded per point [-]"),
         label: str = typer.Option("", "--label", help="name of the sweep (stored in the provenance)"),
+        initial_state: str = typer.Option("0,0,0", "--initial-state", help="fixed initial condition at phase 0: "
+                                          "x_r [mm], v_r [mm/s], V_c [mm/s], comma-separated (every point for "
+                                          "rest, the first point for up/down)"),
         quiet: bool = QUIET,
     ):
         """Bifurcation / progression sweep over one parameter (Poincare points, velocity, impacts, A_f)."""
@@ -115,11 +135,12 @@ def register(app: typer.Typer) -> None:
         if num < 1:
             raise InputError("--num must be >= 1")
         m, d, fr = _setup(model, set_, waveform, f_Hz, Pd_N, duty, friction, Pf_N, literal, v_min_mm_s,
-                          law_speed_unit)
+                          law_speed_unit, static_N)
+        state0 = _parse_state(initial_state)
         values = np.linspace(start, stop, num)
         with task(f"sweep {param}", num, quiet) as advance:
             meta = sweep_to_dir(out, m, d, fr, param, values, protocol, transient_periods, periods,
-                                model_name=model, label=label, progress=advance)
+                                model_name=model, label=label, progress=advance, state0=state0)
         if not quiet:
             typer.echo(f"{out}: {meta['n_points']} points ({protocol})", err=True)
 

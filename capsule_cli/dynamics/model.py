@@ -198,6 +198,8 @@ class Friction:
             if not self.level_N > 0:
                 raise InputError(f"friction level P_f must be > 0 N (use --friction fixed for P_f = inf), "
                                  f"got {self.level_N}")
+            if self.static_N is not None and not (math.isfinite(self.static_N) and self.static_N > 0):
+                raise InputError(f"static friction level must be a finite number > 0 N, got {self.static_N}")
         if self.speed_unit not in ("mm/s", "m/s"):
             raise InputError(f"law speed unit must be 'mm/s' or 'm/s', got '{self.speed_unit}'")
         if self.kind in ("eq22", "eq23", "law"):
@@ -224,7 +226,10 @@ class Friction:
         if self.kind == "fixed":
             return math.inf, math.inf, math.inf
         if self.kind == "coulomb":
-            pb = self.level_N if self.static_N is None else max(self.static_N, 0.0)
+            if self.static_N is None:
+                pb = self.level_N
+            else:  # well posed: breakaway never below the kinetic level (unless literal)
+                pb = self.static_N if self.literal else max(self.static_N, self.level_N)
             return pb, self.level_N, math.inf
         static = self.static_N if self.static_N is not None else 0.0
         if self.literal:
@@ -235,7 +240,7 @@ class Friction:
 
 def friction_preset(kind: str, level_N: float | None = None, literal: bool = False,
                     v_min_mm_s: float | None = None, laws: dict[str, float] | None = None,
-                    speed_unit: str = "mm/s") -> Friction:
+                    speed_unit: str = "mm/s", static_N: float | None = None) -> Friction:
     """Return a friction model by name: coulomb (level P_f), eq22, eq23, fixed.
 
     The eq 22/23 coefficients come from ``configs/params/friction_laws_dynamics.yaml``
@@ -248,7 +253,8 @@ def friction_preset(kind: str, level_N: float | None = None, literal: bool = Fal
             raise InputError("Coulomb friction needs a level P_f in N (--Pf-N)")
         if math.isinf(level_N):
             return Friction(kind="fixed").validate()
-        return Friction(kind="coulomb", level_N=float(level_N)).validate()
+        return Friction(kind="coulomb", level_N=float(level_N), static_N=None if static_N is None else float(static_N),
+                        literal=literal).validate()
     if kind not in ("eq22", "eq23"):
         raise InputError(f"unknown friction '{kind}' (coulomb, eq22, eq23, fixed)")
     L = laws if laws is not None else load_param_set("friction_laws_dynamics")

@@ -115,7 +115,7 @@ class _Sys:
 
 def reference_run(model: CapsuleModel, drive: Drive, friction: Friction, periods: int, state0=None,
                   method: str = "DOP853", rtol: float = 1e-12, atol=None, max_segments: int = 10_000_000,
-                  steps_per_period: float = 16.0):
+                  steps_per_period: float = 100.0):
     """Integrate ``periods`` excitation periods from ``state0`` = [x_r, v_r, X_c, V_c] (rest by default).
 
     Returns :class:`ReferenceResult` with the event list (same kinds as the engine) and the

@@ -106,8 +106,11 @@ def _point_rows(name, value, idx, per, Pd, f_Hz, n_transient):
 
 def run_sweep(model: CapsuleModel, drive: Drive, friction: Friction, name: str, values,
               protocol: str = "rest", transient_periods: int = 200, periods: int = 50,
-              options: EngineOptions | None = None, progress=None) -> SweepResult:
+              options: EngineOptions | None = None, progress=None, state0=None) -> SweepResult:
     """Sweep ``name`` over ``values`` and return per-point and per-period (Poincare) tables.
+
+    ``state0`` = [x_r, v_r, V_c] [m, m/s, m/s] at phase 0: the fixed initial condition of every
+    point (``rest`` protocol; default zero) or of the first point of a continuation.
 
     The sweep table column ``value`` is in the unit of ``name``'s suffix.
     """
@@ -126,11 +129,17 @@ def run_sweep(model: CapsuleModel, drive: Drive, friction: Friction, name: str, 
     elif protocol == "down":
         order = np.argsort(-values, kind="stable")
     opts = replace(options or EngineOptions(), energy=False).pack()
+    s0 = np.zeros(4)
+    if state0 is not None:
+        st0 = np.asarray(state0, dtype=float)
+        if st0.shape != (3,) or not np.all(np.isfinite(st0)):
+            raise InputError("initial state must be three finite numbers: x_r [m], v_r [m/s], V_c [m/s]")
+        s0 = np.array([st0[0], st0[1], 0.0, st0[2]])
     setups = [apply_param(model, drive, friction, name, v) for v in values]
     P = np.stack([pack_params(*s) for s in setups])
     points, rows = [], []
     if protocol == "rest":
-        st, per, _, _ = E.run_many(P, opts, np.zeros((values.size, 4)), int(transient_periods), int(periods))
+        st, per, _, _ = E.run_many(P, opts, np.tile(s0, (values.size, 1)), int(transient_periods), int(periods))
         for i in range(values.size):
             check_status(int(st[i]), float("nan"), setups[i][2], f"sweep point {name} = {values[i]:g}")
         results = [per[i] for i in range(values.size)]
@@ -138,7 +147,7 @@ def run_sweep(model: CapsuleModel, drive: Drive, friction: Friction, name: str, 
             progress(values.size)
     else:
         results = [None] * values.size
-        state = np.zeros(4)
+        state = s0.copy()
         for i in order:
             st, st_t, _, _, _, _, per, _, fin = E.run_core(P[i], opts, state, int(transient_periods),
                                                            int(periods), 1.0, 0, 0)

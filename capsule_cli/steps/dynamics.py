@@ -99,13 +99,16 @@ LANDMARKS = TableSchema("dynamics_landmarks", "frequency landmarks found by the 
 
 
 def make_friction(kind: str, Pf_N: float | None, literal: bool = False, v_min_mm_s: float | None = None,
-                  speed_unit: str = "mm/s") -> Friction:
+                  speed_unit: str = "mm/s", static_N: float | None = None) -> Friction:
     """Return the friction model for a CLI/config choice."""
+    if static_N is not None and kind != "coulomb":
+        raise InputError("--static-N applies to Coulomb friction only (eq22/eq23 carry their own static levels)")
     if kind == "coulomb" and Pf_N is None:
         raise InputError("--friction coulomb needs --Pf-N (N)")
     if speed_unit != "mm/s" and kind not in ("eq22", "eq23"):
         raise InputError("--law-speed-unit applies to the speed laws eq22 and eq23 only")
-    return friction_preset(kind, Pf_N, literal=literal, v_min_mm_s=v_min_mm_s, speed_unit=speed_unit)
+    return friction_preset(kind, Pf_N, literal=literal, v_min_mm_s=v_min_mm_s, speed_unit=speed_unit,
+                           static_N=static_N)
 
 
 def resolve_model(model: str, overrides: dict[str, float] | None = None) -> tuple[CapsuleModel, float | None]:
@@ -158,11 +161,16 @@ def simulate_to_dir(out: Path, model: CapsuleModel, drive: Drive, friction: Fric
 
 def sweep_to_dir(out: Path, model: CapsuleModel, drive: Drive, friction: Friction, param: str, values,
                  protocol: str, transient_periods: int, periods: int, model_name: str = "", label: str = "",
-                 progress=None) -> dict:
-    """Run a sweep; write ``points.parquet``, ``sweep.parquet`` (Poincare rows) and ``sweep.json``."""
-    res = run_sweep(model, drive, friction, param, values, protocol, transient_periods, periods, progress=progress)
+                 progress=None, state0=None) -> dict:
+    """Run a sweep; write ``points.parquet``, ``sweep.parquet`` (Poincare rows) and ``sweep.json``.
+
+    state0 = [x_r, v_r, V_c] [m, m/s] is the initial state of every point (protocol rest) or of the
+    first point (up/down); default rest."""
+    res = run_sweep(model, drive, friction, param, values, protocol, transient_periods, periods, progress=progress,
+                    state0=state0)
     prov = _prov(model_name=model_name, model=model, drive=drive, friction=friction, parameter=param,
-                 protocol=protocol, transient_periods=transient_periods, periods=periods, label=label)
+                 protocol=protocol, transient_periods=transient_periods, periods=periods, label=label,
+                 initial_state_SI=[0.0, 0.0, 0.0] if state0 is None else [float(x) for x in state0])
     out = Path(out)
     write_table(res.points, out / "points.parquet", SWEEP_POINTS, prov)
     write_table(res.poincare, out / "sweep.parquet", SWEEP, prov)
