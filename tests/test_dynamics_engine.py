@@ -331,3 +331,20 @@ def test_fixed_initial_condition_of_a_sweep(one_sided):
     first = res[res["period"] == 0]
     np.testing.assert_allclose(first["relative_mm"], 1.0, rtol=1e-12)
     np.testing.assert_allclose(first["relative_velocity_mm_s"], 200.0, rtol=1e-12)
+
+
+@pytest.mark.parametrize("Pf_N", [0.03, 0.08, 0.3])
+def test_stick_slip_has_no_chattering(one_sided, Pf_N):
+    """Set-valued Coulomb law (eq 21) over 50 steady periods at 10, 20 and 30 Hz: a handful of
+    stick/slip switches per period (at most 12), never closer than 10 us (no chattering); the
+    stick-dominated case (0.3 N, 10 Hz, ~10 switches per period) matches the reference."""
+    model, _ = one_sided
+    fr = friction_preset("coulomb", Pf_N)
+    for f in (10.0, 20.0, 30.0):
+        r = simulate(model, Drive(0.15, f), fr, periods=50, transient_periods=100)
+        t = r.events[r.events["kind"].isin(["stick", "slip_forward", "slip_backward"])]["time_s"].to_numpy()
+        assert 0 < len(t) <= 12 * 50
+        assert np.diff(t).min() > 1e-5
+    if Pf_N == 0.3:
+        settled = simulate(model, Drive(0.15, 10.0), fr, periods=1, transient_periods=100).final_state
+        _compare(model, Drive(0.15, 10.0), fr, 3, 1e-9, state0=[settled[0], settled[1], 0.0, settled[3]])
