@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from capsule_cli.dynamics import (CapsuleModel, Drive, DynamicsError, EngineOptions, friction_preset,
-                                  load_model, simulate)
+from capsule_cli.dynamics import CapsuleModel, Drive, DynamicsError, friction_preset, load_model, simulate
 from capsule_cli.dynamics.reference import reference_run
 from capsule_cli.dynamics.sweep import period_number, run_sweep
 

@@ -496,7 +496,6 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
     G2 = p[I_G2]
     Mm = p[I_MM]
     Mc = p[I_MC]
-    Mt = Mm + Mc
     back = p[I_BACK] > 0.5
     tol_x = 1e-13 * p[I_XS]
     tol_v = 1e-13 * p[I_VS]
@@ -520,7 +519,6 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
     ddcF = np.zeros(NB)
     negc = np.zeros(NB)
     negdc = np.zeros(NB)
-    tmpc = np.zeros(NB)
     B = np.zeros(NB)
     Bs = np.zeros(NB)
     ga = np.zeros(4)

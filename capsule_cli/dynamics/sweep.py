@@ -165,6 +165,5 @@ def run_sweep(model: CapsuleModel, drive: Drive, friction: Friction, name: str, 
         rows.append(rw)
     pts = pd.DataFrame(points).sort_values("point").reset_index(drop=True)
     poin = pd.concat(rows, ignore_index=True).sort_values(["point", "period"]).reset_index(drop=True)
-    poin = poin.merge(pts[["point", "velocity_mm_s", "impacts_per_period", "Af", "period_number"]]
-                      .rename(columns={"max_Fi_N": "point_max_Fi_N"}), on="point")
+    poin = poin.merge(pts[["point", "velocity_mm_s", "impacts_per_period", "Af", "period_number"]], on="point")
     return SweepResult(points=pts, poincare=poin)

@@ -28,7 +28,6 @@ The rule, fixed in advance (also written into every diagnosis.md):
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,8 +37,7 @@ import yaml
 
 from ..effects.model import Model
 from ..effects.registry import Effect, base_name, effects as all_effects, si_factor
-from ..errors import InputError
-from ..tables import (Column, TableSchema, is_synthetic, provenance, response_column, write_json_atomic, write_table,
+from ..tables import (is_synthetic, provenance, response_column, write_json_atomic, write_table,
                       write_text_atomic)
 from ..units import split_unit, unit_label
 from . import crossval
