@@ -3,7 +3,7 @@
 Protocols (physics.md section 3: the response is multistable, say which one a figure used):
 
 * ``rest`` -- every point starts from rest (zero state); points run in parallel
-  (numba ``prange`` over sweep points);
+  (numba ``prange`` over sweep points) in chunks (:mod:`.parallel`: interruptible, progress);
 * ``up`` / ``down`` -- continuation: points in increasing / decreasing order, each starting
   from the previous point's end state (x_r, v_r, V_c at phase 0; X_c reset to 0).
 """
@@ -18,6 +18,7 @@ import pandas as pd
 from ..errors import InputError
 from . import engine as E
 from .model import MODEL_PARAM_NAMES, CapsuleModel, Drive, EngineOptions, Friction, pack_params
+from .parallel import run_points, run_rows_continuation, summarize
 from .run import check_status
 
 DRIVE_PARAMS = ("f_Hz", "Pd_N", "duty")
@@ -72,38 +73,6 @@ class SweepResult:
     poincare: pd.DataFrame
 
 
-def _point_rows(name, value, idx, per, Pd, f_Hz, n_transient):
-    T = 1.0 / f_Hz
-    n = per.shape[0]
-    xr = per[:, E.P_XR0]
-    vr = per[:, E.P_VR0]
-    disp = per[:, E.P_DISP]
-    maxF = per[:, E.P_MAXF]
-    pn = period_number(xr, vr)
-    avg_v = float(disp.sum() / (n * T)) if n else float("nan")
-    point = {
-        "point": idx, "value": float(value), "f_Hz": f_Hz,
-        "velocity_mm_s": avg_v * 1e3,
-        "impacts_per_period": float(per[:, E.P_NFRONT].mean()) if n else float("nan"),
-        "back_impacts_per_period": float(per[:, E.P_NBACK].mean()) if n else float("nan"),
-        "max_Fi_N": float(maxF.max()) if n else float("nan"),
-        "Af": float(maxF.max() / Pd) if (n and Pd > 0) else float("nan"),
-        "period_number": int(pn),
-        "stick_fraction": float(per[:, E.P_STICK].mean()) if n else float("nan"),
-    }
-    rows = pd.DataFrame({
-        "point": np.full(n, idx, dtype=np.int64),
-        "value": np.full(n, float(value)),
-        "period": np.arange(n_transient, n_transient + n, dtype=np.int64),
-        "relative_mm": xr * 1e3,
-        "relative_velocity_mm_s": vr * 1e3,
-        "displacement_mm": disp * 1e3,
-        "impacts": per[:, E.P_NFRONT].astype(np.int64),
-        "max_Fi_N": maxF,
-    })
-    return point, rows
-
-
 def run_sweep(model: CapsuleModel, drive: Drive, friction: Friction, name: str, values,
               protocol: str = "rest", transient_periods: int = 200, periods: int = 50,
               options: EngineOptions | None = None, progress=None, state0=None) -> SweepResult:
@@ -137,33 +106,47 @@ def run_sweep(model: CapsuleModel, drive: Drive, friction: Friction, name: str, 
         s0 = np.array([st0[0], st0[1], 0.0, st0[2]])
     setups = [apply_param(model, drive, friction, name, v) for v in values]
     P = np.stack([pack_params(*s) for s in setups])
-    points, rows = [], []
+    n = values.size
     if protocol == "rest":
-        st, per, _, _ = E.run_many(P, opts, np.tile(s0, (values.size, 1)), int(transient_periods), int(periods))
-        for i in range(values.size):
-            check_status(int(st[i]), float("nan"), setups[i][2], f"sweep point {name} = {values[i]:g}")
-        results = [per[i] for i in range(values.size)]
-        if progress:
-            progress(values.size)
+        st, per, _ = run_points(P, opts, np.tile(s0, (n, 1)), int(transient_periods), int(periods),
+                                progress=progress)
     else:
-        results = [None] * values.size
-        state = s0.copy()
-        for i in order:
-            st, st_t, _, _, _, _, per, _, fin = E.run_core(P[i], opts, state, int(transient_periods),
-                                                           int(periods), 1.0, 0, 0)
-            check_status(int(st), float(st_t), setups[i][2], f"sweep point {name} = {values[i]:g}")
-            results[i] = per
-            state = np.array([fin[0], fin[1], 0.0, fin[3]])
-            if progress:
-                progress(1)
-    for rank, i in enumerate(order):
-        d = setups[i][1]
-        pt, rw = _point_rows(name, values[i], int(i), results[i], d.amplitude_N, d.frequency_Hz,
-                             int(transient_periods))
-        pt["order"] = rank
-        points.append(pt)
-        rows.append(rw)
-    pts = pd.DataFrame(points).sort_values("point").reset_index(drop=True)
-    poin = pd.concat(rows, ignore_index=True).sort_values(["point", "period"]).reset_index(drop=True)
-    poin = poin.merge(pts[["point", "velocity_mm_s", "impacts_per_period", "Af", "period_number"]], on="point")
+        # one row of points in run order: continuation, interruptible between points
+        st_r, per_r = run_rows_continuation(P[order][None], opts, s0[None], int(transient_periods), int(periods),
+                                            progress=progress)
+        st = np.empty(n, dtype=np.int64)
+        per = np.empty((n,) + per_r.shape[2:])
+        st[order] = st_r[0]
+        per[order] = per_r[0]
+    bad = np.nonzero(st != E.STATUS_OK)[0]
+    if bad.size:
+        i = int(order[np.argmax(np.isin(order, bad))]) if protocol != "rest" else int(bad[0])
+        check_status(int(st[i]), float("nan"), setups[i][2], f"sweep point {name} = {values[i]:g}")
+    Pd = np.array([s[1].amplitude_N for s in setups])
+    f = np.array([s[1].frequency_Hz for s in setups])
+    sm = summarize(per, Pd, f)
+    rank = np.empty(n, dtype=np.int64)
+    rank[order] = np.arange(n)
+    pts = pd.DataFrame({
+        "point": np.arange(n, dtype=np.int64), "value": values, "f_Hz": f,
+        "velocity_mm_s": sm["velocity_mm_s"], "impacts_per_period": sm["impacts_per_period"],
+        "back_impacts_per_period": sm["back_impacts_per_period"], "max_Fi_N": sm["max_Fi_N"], "Af": sm["Af"],
+        "period_number": sm["period_number"], "stick_fraction": sm["stick_fraction"], "order": rank,
+    })
+    m = int(periods)
+    rep = lambda a: np.repeat(a, m)  # noqa: E731
+    poin = pd.DataFrame({
+        "point": rep(np.arange(n, dtype=np.int64)),
+        "value": rep(values),
+        "period": np.tile(np.arange(int(transient_periods), int(transient_periods) + m, dtype=np.int64), n),
+        "relative_mm": per[:, :, E.P_XR0].ravel() * 1e3,
+        "relative_velocity_mm_s": per[:, :, E.P_VR0].ravel() * 1e3,
+        "displacement_mm": per[:, :, E.P_DISP].ravel() * 1e3,
+        "impacts": per[:, :, E.P_NFRONT].ravel().astype(np.int64),
+        "max_Fi_N": per[:, :, E.P_MAXF].ravel(),
+        "velocity_mm_s": rep(sm["velocity_mm_s"]),
+        "impacts_per_period": rep(sm["impacts_per_period"]),
+        "Af": rep(sm["Af"]),
+        "period_number": rep(sm["period_number"]),
+    })
     return SweepResult(points=pts, poincare=poin)
