@@ -1,4 +1,7 @@
-"""Progress bars: rich on a terminal, silent in pipelines (``--quiet`` or no TTY)."""
+"""Progress bars: rich on a terminal, silent in pipelines (``--quiet`` or no TTY).
+
+Parallel sweeps and maps advance the bar as chunks finish (:mod:`.dynamics.parallel`).
+"""
 from __future__ import annotations
 
 import sys
@@ -34,3 +37,31 @@ def task(description: str, total: int, quiet: bool = False):
     with Progress(transient=True) as prog:
         tid = prog.add_task(description, total=total)
         yield lambda n=1: prog.advance(tid, n)
+
+
+def _needs_compile(dispatcher) -> bool:
+    """True when a numba dispatcher has no loaded code and no valid on-disk cache (it will compile)."""
+    if getattr(dispatcher, "signatures", None):
+        return False
+    try:
+        return not dispatcher._cache._cache_file._load_index()  # empty when missing or stale
+    except Exception:  # numba internals changed: say nothing rather than guess
+        return False
+
+
+def compile_notice(quiet: bool = False) -> bool:
+    """Say on stderr (terminal only) that the engine is being compiled, when it is; return whether it is.
+
+    The first-ever call (or the first after the engine's source changed) compiles the numba
+    engine, which takes tens of seconds; afterwards the on-disk cache loads in about a second.
+    """
+    if quiet or not sys.stderr.isatty():
+        return False
+    from .dynamics import engine as E
+
+    if any(_needs_compile(d) for d in (E.run_many, E.run_core)):
+        sys.stderr.write("capsule-cli: compiling the dynamics engine (first run only, cached afterwards; "
+                         "this can take a minute)...\n")
+        sys.stderr.flush()
+        return True
+    return False

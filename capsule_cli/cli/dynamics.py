@@ -146,38 +146,89 @@ def register(app: typer.Typer) -> None:
 
     @app.command("magnify")
     def magnify_cmd(
-        out: Path = typer.Option(..., "--out", "-o", help="output Parquet file of A_f over (P_f, P_d, f)"),
+        out: Path = typer.Option(..., "--out", "-o", help="output Parquet file of A_f over (friction, P_d, f)"),
         Pd_start_N: float = typer.Option(0.01, "--Pd-start-N", help="first amplitude [N]"),
         Pd_stop_N: float = typer.Option(0.5, "--Pd-stop-N", help="last amplitude [N]"),
         Pd_num: int = typer.Option(20, "--Pd-num", help="number of amplitudes [-]"),
         f_start_Hz: float = typer.Option(5.0, "--f-start-Hz", help="first frequency [Hz]"),
         f_stop_Hz: float = typer.Option(40.0, "--f-stop-Hz", help="last frequency [Hz]"),
         f_num: int = typer.Option(36, "--f-num", help="number of frequencies [-]"),
-        Pf_N: List[float] = typer.Option([0.007], "--Pf-N", help="Coulomb level(s) [N]; 'inf' = shell fixed; repeatable"),
+        Pf_N: Optional[List[float]] = typer.Option(None, "--Pf-N", help="Coulomb level(s) [N]; 'inf' = shell fixed; "
+                                                   "repeatable (default 0.007 when no --law / --fig19)"),
+        law: Optional[List[str]] = typer.Option(None, "--law", help="speed-law friction eq22 or eq23 (seed 000, "
+                                                "well-posed form); repeatable"),
+        fig19: bool = typer.Option(False, "--fig19", help="the eight frictions of seed 000 Fig 19 "
+                                   "(configs/bench/fig19.yaml: 0.007, 0.17, 2.5, 4.5, 10 N, inf, eq22, eq23)"),
         protocol: str = typer.Option("rest", "--protocol", help="rest, or up/down continuation in f"),
         model: str = MODEL_OPT, set_: Optional[List[str]] = SET_OPT,
-        transient_periods: int = typer.Option(200, "--transient-periods", help="periods discarded per point [-]"),
+        transient_periods: int = typer.Option(200, "--transient-periods", help="periods discarded per point "
+                                              "(steady state only is recorded) [-]"),
         periods: int = typer.Option(30, "--periods", help="periods recorded per point [-]"),
+        Pd_rows: Optional[str] = typer.Option(None, "--Pd-rows", help="compute only amplitudes START:STOP "
+                                              "(0-based indices into the P_d grid, STOP excluded): one chunk of a "
+                                              "split map, joined with --gather"),
+        gather: Optional[List[Path]] = typer.Option(None, "--gather", help="join these chunk tables (split along "
+                                                    "P_d) into --out instead of computing; repeatable"),
         figure: Optional[Path] = typer.Option(None, "--figure", help="also draw the maps to this PNG/PDF"),
+        scale: str = typer.Option("shared", "--scale", help="colour scale of the figure: shared (all panels) or "
+                                  "panel (one per panel)"),
         quiet: bool = QUIET,
     ):
         """Magnification factor maps A_f = max|F_i|/P_d over (P_d, f) (seed 000 eq 24, Fig 19)."""
-        from ..plots.dynamics import magnify_figure
-        from ..progress import task
-        from ..steps.dynamics import MAGNIFY, magnify_table, resolve_model
-        from ..tables import provenance, write_table
+        from ..progress import compile_notice, task
+        from ..steps.dynamics import MAGNIFY, gather_magnify, load_fig19, magnify_table, resolve_model
+        from ..tables import provenance, read_table, write_table
 
-        m, _ = resolve_model(model, _parse_set(set_))
-        Pd = np.linspace(Pd_start_N, Pd_stop_N, Pd_num)
-        f = np.linspace(f_start_Hz, f_stop_Hz, f_num)
-        with task("magnify", len(Pf_N) * Pd_num, quiet) as advance:
-            df = magnify_table(m, Pd, f, Pf_N, protocol, transient_periods, periods, progress=advance)
-        prov = provenance(model_name=model, protocol=protocol, transient_periods=transient_periods, periods=periods)
+        if scale not in ("shared", "panel"):
+            raise InputError(f"--scale '{scale}': expected shared or panel")
+        if gather:
+            if Pd_rows is not None:
+                raise InputError("--gather joins chunks: do not give --Pd-rows with it")
+            tabs = [read_table(p) for p in gather]
+            df = gather_magnify(tabs)
+            prov = dict(tabs[0].attrs.get("provenance", {}))
+            prov.pop("Pd_rows", None)
+            base = ("package", "version", "git_commit", "config_hash", "seed", "synthetic", "command")
+            prov = provenance(**{k: v for k, v in prov.items() if k not in base},
+                              gathered_from=[str(p) for p in gather])
+        else:
+            frictions: list = []
+            if fig19:
+                frictions += list(load_fig19()["frictions"])
+            frictions += [str(x) for x in (Pf_N or [])] + list(law or [])
+            if not frictions:
+                frictions = ["0.007"]
+            if Pd_num < 1 or f_num < 1:
+                raise InputError("--Pd-num and --f-num must be >= 1")
+            m, _ = resolve_model(model, _parse_set(set_))
+            Pd = np.linspace(Pd_start_N, Pd_stop_N, Pd_num)
+            f = np.linspace(f_start_Hz, f_stop_Hz, f_num)
+            rows = None
+            if Pd_rows is not None:
+                try:
+                    a, b = (int(x) for x in Pd_rows.split(":"))
+                except ValueError:
+                    raise InputError(f"--Pd-rows '{Pd_rows}': expected START:STOP (integers)") from None
+                if not 0 <= a < b <= Pd_num:
+                    raise InputError(f"--Pd-rows '{Pd_rows}': need 0 <= START < STOP <= --Pd-num ({Pd_num})")
+                rows = [a, b]
+                Pd = Pd[a:b]
+            compile_notice(quiet)
+            with task("magnify", len(frictions) * Pd.size * f.size, quiet) as advance:
+                df = magnify_table(m, Pd, f, frictions, protocol, transient_periods, periods, progress=advance)
+            prov = provenance(model_name=model, protocol=protocol, transient_periods=transient_periods,
+                              periods=periods, frictions=[str(x) for x in frictions],
+                              Pd_grid_N=[Pd_start_N, Pd_stop_N, Pd_num], f_grid_Hz=[f_start_Hz, f_stop_Hz, f_num],
+                              Pd_rows=rows)
         write_table(df, out, MAGNIFY, prov)
         if figure is not None:
-            magnify_figure(df, f"Magnification factor (seed 000 Fig 19), protocol: {protocol}", figure)
+            from ..plots.dynamics import magnify_figure
+
+            prot = "/".join(dict.fromkeys(df["protocol"].astype(str).tolist()))
+            magnify_figure(df, f"Magnification factor (seed 000 Fig 19), protocol: {prot}", figure, scale=scale)
         if not quiet:
-            typer.echo(f"{out}: max A_f = {df['Af'].max():.4g}", err=True)
+            peaks = df.groupby("friction", sort=False)["Af"].max()
+            typer.echo(f"{out}: max A_f " + ", ".join(f"{k}: {v:.4g}" for k, v in peaks.items()), err=True)
 
     @app.command("bench")
     def bench_cmd(

@@ -71,28 +71,53 @@ def duty_map_figure(df: pd.DataFrame, title: str, path: str | Path,
     return save_figure(fig, path)
 
 
-def magnify_figure(df: pd.DataFrame, title: str, path: str | Path) -> Path:
-    """A_f = max|F_i|/P_d over (f, P_d), one panel per friction level."""
-    levels = list(dict.fromkeys(df["Pf_N"].tolist()))
+FRICTION_TEXT = {"inf": "$P_f$ = ∞ N", "eq22": "$P_f$ = $F_{c1e}$ (eq 22)", "eq23": "$P_f$ = $F_{c4e}$ (eq 23)"}
+
+
+def magnify_figure(df: pd.DataFrame, title: str, path: str | Path, scale: str = "shared") -> Path:
+    """A_f = max|F_i|/P_d over (f, P_d), one panel per friction, the peak of each panel marked.
+
+    ``scale``: 'shared' (one colour scale for all panels) or 'panel' (one per panel). The
+    protocol (column ``protocol``, when present) is written under the title.
+    """
+    if scale not in ("shared", "panel"):
+        raise ValueError(f"scale must be 'shared' or 'panel', got {scale!r}")
+    key = "friction" if "friction" in df.columns else "Pf_N"
+    levels = list(dict.fromkeys(df[key].tolist()))
     n = len(levels)
-    ncols = min(3, n)
+    ncols = min(4, n)
     nrows = int(math.ceil(n / ncols))
     fig, axes = figure(ncols=ncols, nrows=nrows, width="page", height_in=2.3 * nrows, squeeze=False)
     vmax = float(np.nanmax(df["Af"]))
-    for k, pf in enumerate(levels):
+    mesh = None
+    for k, lev in enumerate(levels):
         ax = axes[k // ncols][k % ncols]
-        sub = df[df["Pf_N"] == pf].pivot_table(index="Pd_N", columns="f_Hz", values="Af")
+        sub = df[df[key] == lev].pivot_table(index="Pd_N", columns="f_Hz", values="Af")
         f = sub.columns.to_numpy(float)
         p = sub.index.to_numpy(float)
-        mesh = ax.pcolormesh(_edges(f), _edges(p), sub.to_numpy(), cmap="viridis", vmin=0, vmax=vmax, shading="flat")
-        name = "∞" if math.isinf(pf) else f"{pf:g}"
-        ax.set_title(f"$P_f$ = {name} N, max $A_f$ = {np.nanmax(sub.to_numpy()):.0f}")
+        a = sub.to_numpy()
+        top = float(np.nanmax(a))
+        mesh = ax.pcolormesh(_edges(f), _edges(p), a, cmap="viridis", vmin=0,
+                             vmax=vmax if scale == "shared" else top, shading="flat")
+        if scale == "panel":
+            fig.colorbar(mesh, ax=ax, label="$A_f$ [-]")
+        i, j = np.unravel_index(np.nanargmax(a), a.shape)
+        ax.plot(f[j], p[i], marker="*", color="w", mec="k", mew=0.5, ms=8, ls="none")
+        if key == "friction":
+            name = FRICTION_TEXT.get(str(lev), f"$P_f$ = {lev} N")
+        else:
+            name = "$P_f$ = ∞ N" if math.isinf(lev) else f"$P_f$ = {lev:g} N"
+        ax.set_title(f"{name}\npeak $A_f$ = {top:.0f} at {f[j]:.3g} Hz, {p[i]:.3g} N", fontsize=7)
         ax.set_xlabel(label("f", "Hz"))
         ax.set_ylabel(label("$P_d$", "N"))
         ax.grid(False)
     for k in range(n, nrows * ncols):
         axes[k // ncols][k % ncols].set_visible(False)
-    fig.colorbar(mesh, ax=axes, label="magnification factor $A_f$ [-]")
+    if scale == "shared" and mesh is not None:
+        fig.colorbar(mesh, ax=axes, label="magnification factor $A_f$ [-]")
+    if "protocol" in df.columns:
+        prots = "/".join(dict.fromkeys(df["protocol"].astype(str).tolist()))
+        title = f"{title}\nprotocol: {prots} ({PROTOCOL_TEXT.get(prots, prots)}); star: peak of each panel"
     fig.suptitle(title, fontsize=8)
     return save_figure(fig, path)
 

@@ -78,10 +78,14 @@ SWEEP = TableSchema("dynamics_sweep", "one row per sweep point per recorded peri
     C("period_number", "int64", "period of the point's response (0: none up to 8)", unit=""),
 ))
 MAGNIFY = TableSchema("dynamics_magnify", "magnification factor A_f = max|F_i|/P_d over (P_d, f) (seed 000 eq 24)", (
-    C("Pf_N", "float64", "Coulomb friction level (inf: shell fixed)"),
+    C("friction", "string", "friction of the panel: a Coulomb level in N ('0.007'), 'inf' (shell fixed), "
+      "'eq22' or 'eq23' (seed 000 speed laws)", unit=""),
+    C("Pf_N", "float64", "Coulomb friction level (inf: shell fixed; NaN: speed law)"),
     C("Pd_N", "float64", "drive amplitude"),
     C("f_Hz", "float64", "drive frequency"),
-    C("Af", "float64", "magnification factor", unit=""),
+    C("protocol", "string", "initial conditions: rest (every point from rest) or up/down (continuation in f)",
+      unit=""),
+    C("Af", "float64", "magnification factor over the recorded (steady) periods", unit=""),
     C("max_Fi_N", "float64", "max |F_i| over the recorded periods"),
     C("impacts_per_period", "float64", "mean front impacts per period", unit=""),
     C("velocity_mm_s", "float64", "average capsule velocity"),
@@ -180,22 +184,151 @@ def sweep_to_dir(out: Path, model: CapsuleModel, drive: Drive, friction: Frictio
     return meta
 
 
-def magnify_table(model: CapsuleModel, Pd_values, f_values, Pf_values, protocol: str, transient_periods: int,
-                  periods: int, progress=None) -> pd.DataFrame:
-    """Return A_f over (P_d, f) for each Coulomb level (continuation runs along f for up/down)."""
-    rows = []
-    for pf in Pf_values:
-        fr = friction_preset("fixed") if math.isinf(pf) else friction_preset("coulomb", float(pf))
-        for pd_ in Pd_values:
-            res = run_sweep(model, Drive(float(pd_), float(f_values[0])), fr, "f_Hz", f_values, protocol,
-                            transient_periods, periods)
-            p = res.points
-            rows.append(pd.DataFrame({"Pf_N": float(pf), "Pd_N": float(pd_), "f_Hz": p["value"], "Af": p["Af"],
-                                      "max_Fi_N": p["max_Fi_N"], "impacts_per_period": p["impacts_per_period"],
-                                      "velocity_mm_s": p["velocity_mm_s"]}))
-            if progress:
-                progress(1)
-    return pd.concat(rows, ignore_index=True)
+def magnify_friction(spec) -> tuple[str, Friction, float]:
+    """Return (label, friction, P_f [N]) of a magnify friction: a Coulomb level in N, 'inf', 'eq22', 'eq23'.
+
+    P_f is inf for the fixed shell and NaN for the speed laws (seed 000 eqs 21-23).
+    """
+    text = str(spec).strip().lower()
+    if text in ("eq22", "eq23"):
+        return text, friction_preset(text), float("nan")
+    try:
+        level = float(text)
+    except ValueError:
+        raise InputError(f"friction '{spec}': expected a Coulomb level in N, inf, eq22 or eq23") from None
+    if math.isnan(level) or level <= 0:
+        raise InputError(f"friction '{spec}': a Coulomb level must be > 0 N (or inf)")
+    if math.isinf(level):
+        return "inf", friction_preset("fixed"), float("inf")
+    return f"{level:g}", friction_preset("coulomb", level), level
+
+
+def load_fig19(path: Path | None = None) -> dict:
+    """Return the seed 000 Fig 19 set (configs/bench/fig19.yaml): frictions, grid, periods, protocol."""
+    from ..config import configs_dir, read_yaml
+
+    return read_yaml(path or (configs_dir() / "bench" / "fig19.yaml"))
+
+
+def magnify_arrays(model: CapsuleModel, Pd_values, f_values, friction: Friction, protocol: str,
+                   transient_periods: int, periods: int, progress=None, target_chunk_s: float | None = None):
+    """A_f and friends over the (P_d, f) grid of one friction, as (n_Pd, n_f) arrays.
+
+    rest: every point from rest, all points in parallel chunks; up/down: continuation along f
+    (increasing / decreasing) from rest at the first frequency, all P_d rows in parallel.
+    Returns a dict of arrays Af, max_Fi_N, impacts_per_period, velocity_mm_s.
+    """
+    from ..dynamics import engine as E
+    from ..dynamics.model import pack_params
+    from ..dynamics.parallel import TARGET_CHUNK_S, run_points, run_rows_continuation, summarize
+    from ..dynamics.run import check_status
+
+    if protocol not in ("rest", "up", "down"):
+        raise InputError(f"unknown protocol '{protocol}' (one of rest, up, down)")
+    Pd = np.asarray(Pd_values, dtype=float)
+    f = np.asarray(f_values, dtype=float)
+    if Pd.size == 0 or f.size == 0:
+        raise InputError("empty magnify grid (--Pd-num and --f-num must be >= 1)")
+    if periods < 1:
+        raise InputError("magnify needs at least one recorded period")
+    for x in Pd:
+        Drive(float(x), float(f[0])).validate()
+    for x in f:
+        Drive(float(Pd[0]), float(x)).validate()
+    order = np.arange(f.size)
+    if protocol == "up":
+        order = np.argsort(f, kind="stable")
+    elif protocol == "down":
+        order = np.argsort(-f, kind="stable")
+    # parameter vectors: the grid in run order along f (Drive is valid: checked above)
+    P = np.empty((Pd.size, f.size, E.N_PARAMS))
+    for i, a in enumerate(Pd):
+        for jj, j in enumerate(order):
+            P[i, jj] = pack_params(model, Drive(float(a), float(f[j])), friction)
+    opts = EngineOptions(energy=False).pack()
+    if protocol == "rest":
+        st, per, _ = run_points(P.reshape(-1, E.N_PARAMS), opts, np.zeros((P.shape[0] * P.shape[1], 4)),
+                                int(transient_periods), int(periods), progress=progress,
+                                target_chunk_s=target_chunk_s or TARGET_CHUNK_S)
+        st = st.reshape(Pd.size, f.size)
+        per = per.reshape(Pd.size, f.size, *per.shape[1:])
+    else:
+        st, per = run_rows_continuation(P, opts, np.zeros((Pd.size, 4)), int(transient_periods), int(periods),
+                                        progress=progress)
+    inv = np.empty_like(order)
+    inv[order] = np.arange(f.size)
+    st = st[:, inv]
+    per = per[:, inv]
+    bad = np.argwhere(st != E.STATUS_OK)
+    if bad.size:
+        i, j = (int(x) for x in bad[0])
+        check_status(int(st[i, j]), float("nan"), friction, f"magnify point P_d = {Pd[i]:g} N, f = {f[j]:g} Hz")
+    PdG, fG = np.meshgrid(Pd, f, indexing="ij")
+    sm = summarize(per.reshape(-1, *per.shape[2:]), PdG.ravel(), fG.ravel())
+    return {k: sm[k].reshape(Pd.size, f.size) for k in ("Af", "max_Fi_N", "impacts_per_period", "velocity_mm_s")}
+
+
+def magnify_table(model: CapsuleModel, Pd_values, f_values, frictions, protocol: str, transient_periods: int,
+                  periods: int, progress=None, timings: dict | None = None) -> pd.DataFrame:
+    """Return A_f over (P_d, f) for each friction (Coulomb level [N], inf, 'eq22', 'eq23'), one table.
+
+    Rows: frictions in the given order, then P_d, then f (ascending as given). ``timings``, if
+    given, receives the wall time [s] of each friction by label.
+    """
+    import time
+
+    Pd = np.asarray(Pd_values, dtype=float)
+    f = np.asarray(f_values, dtype=float)
+    parsed = [magnify_friction(x) for x in frictions]
+    labels = [p[0] for p in parsed]
+    if len(set(labels)) != len(labels):
+        raise InputError(f"magnify: a friction is given twice ({', '.join(labels)})")
+    parts = []
+    for label, fr, pf in parsed:
+        t0 = time.perf_counter()
+        a = magnify_arrays(model, Pd, f, fr, protocol, transient_periods, periods, progress=progress)
+        if timings is not None:
+            timings[label] = time.perf_counter() - t0
+        parts.append((label, pf, a))
+    n = Pd.size * f.size
+    PdG, fG = np.meshgrid(Pd, f, indexing="ij")
+    return pd.DataFrame({
+        "friction": pd.array(np.repeat(labels, n), dtype="string"),
+        "Pf_N": np.repeat([pf for _, pf, _ in parts], n).astype(float),
+        "Pd_N": np.tile(PdG.ravel(), len(parts)),
+        "f_Hz": np.tile(fG.ravel(), len(parts)),
+        "protocol": pd.array([protocol] * (n * len(parts)), dtype="string"),
+        **{k: np.concatenate([a[k].ravel() for _, _, a in parts])
+           for k in ("Af", "max_Fi_N", "impacts_per_period", "velocity_mm_s")},
+    })
+
+
+def gather_magnify(tables: list[pd.DataFrame]) -> pd.DataFrame:
+    """Join magnify chunks (split along P_d) into one table, rows ordered as an unchunked run.
+
+    Raises InputError on overlapping rows or chunks with different frictions or protocols.
+    """
+    if not tables:
+        raise InputError("magnify --gather: no chunk tables given")
+    fr = [list(dict.fromkeys(t["friction"].tolist())) for t in tables]
+    if any(x != fr[0] for x in fr):
+        raise InputError("magnify --gather: the chunks have different frictions")
+    if len({tuple(dict.fromkeys(t["protocol"].tolist())) for t in tables}) != 1:
+        raise InputError("magnify --gather: the chunks have different protocols")
+    df = pd.concat(tables, ignore_index=True)
+    rank = {lab: k for k, lab in enumerate(fr[0])}
+    df = df.assign(_r=df["friction"].map(rank).astype(int)).sort_values(["_r", "Pd_N", "f_Hz"], kind="stable")
+    df = df.drop(columns="_r").reset_index(drop=True)
+    if df.duplicated(["friction", "Pd_N", "f_Hz"]).any():
+        raise InputError("magnify --gather: chunks overlap (a (friction, P_d, f) point appears twice)")
+    return df
+
+
+def Pd_chunks(n_Pd: int, n_chunks: int) -> list[tuple[int, int]]:
+    """Split P_d indices 0..n_Pd-1 into ``n_chunks`` contiguous [start, stop) ranges of near-equal size."""
+    n_chunks = max(1, min(int(n_chunks), int(n_Pd)))
+    edges = np.linspace(0, n_Pd, n_chunks + 1).round().astype(int)
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
 
 
 # ---------------------------------------------------------------------------
