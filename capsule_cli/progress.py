@@ -65,3 +65,20 @@ def compile_notice(quiet: bool = False) -> bool:
         sys.stderr.flush()
         return True
     return False
+
+
+@contextmanager
+def exit_on_interrupt():
+    """Turn Ctrl-C (KeyboardInterrupt) inside a command into exit code 130 (contract section 5).
+
+    Long work returns to Python between chunks (:mod:`.dynamics.parallel`), so the interrupt
+    lands within about a chunk; outputs are written only after the work, atomically, so an
+    interrupted command leaves no file behind.
+    """
+    try:
+        yield
+    except KeyboardInterrupt:
+        import typer
+
+        sys.stderr.write("capsule-cli: interrupted\n")
+        raise typer.Exit(130) from None

@@ -129,7 +129,7 @@ def register(app: typer.Typer) -> None:
         quiet: bool = QUIET,
     ):
         """Bifurcation / progression sweep over one parameter (Poincare points, velocity, impacts, A_f)."""
-        from ..progress import task
+        from ..progress import compile_notice, exit_on_interrupt, task
         from ..steps.dynamics import sweep_to_dir
 
         if num < 1:
@@ -138,7 +138,8 @@ def register(app: typer.Typer) -> None:
                           law_speed_unit, static_N)
         state0 = _parse_state(initial_state)
         values = np.linspace(start, stop, num)
-        with task(f"sweep {param}", num, quiet) as advance:
+        compile_notice(quiet)
+        with exit_on_interrupt(), task(f"sweep {param}", num, quiet) as advance:
             meta = sweep_to_dir(out, m, d, fr, param, values, protocol, transient_periods, periods,
                                 model_name=model, label=label, progress=advance, state0=state0)
         if not quiet:
@@ -175,7 +176,7 @@ def register(app: typer.Typer) -> None:
         quiet: bool = QUIET,
     ):
         """Magnification factor maps A_f = max|F_i|/P_d over (P_d, f) (seed 000 eq 24, Fig 19)."""
-        from ..progress import compile_notice, task
+        from ..progress import compile_notice, exit_on_interrupt, task
         from ..steps.dynamics import MAGNIFY, gather_magnify, load_fig19, magnify_table, resolve_model
         from ..tables import provenance, read_table, write_table
 
@@ -214,7 +215,7 @@ def register(app: typer.Typer) -> None:
                 rows = [a, b]
                 Pd = Pd[a:b]
             compile_notice(quiet)
-            with task("magnify", len(frictions) * Pd.size * f.size, quiet) as advance:
+            with exit_on_interrupt(), task("magnify", len(frictions) * Pd.size * f.size, quiet) as advance:
                 df = magnify_table(m, Pd, f, frictions, protocol, transient_periods, periods, progress=advance)
             prov = provenance(model_name=model, protocol=protocol, transient_periods=transient_periods,
                               periods=periods, frictions=[str(x) for x in frictions],
@@ -224,8 +225,7 @@ def register(app: typer.Typer) -> None:
         if figure is not None:
             from ..plots.dynamics import magnify_figure
 
-            prot = "/".join(dict.fromkeys(df["protocol"].astype(str).tolist()))
-            magnify_figure(df, f"Magnification factor (seed 000 Fig 19), protocol: {prot}", figure, scale=scale)
+            magnify_figure(df, "Magnification factor $A_f$ (seed 000 Fig 19)", figure, scale=scale)
         if not quiet:
             peaks = df.groupby("friction", sort=False)["Af"].max()
             typer.echo(f"{out}: max A_f " + ", ".join(f"{k}: {v:.4g}" for k, v in peaks.items()), err=True)
@@ -238,17 +238,38 @@ def register(app: typer.Typer) -> None:
                                             "throughput per frequency [-]"),
         baseline_periods: int = typer.Option(60, "--baseline-periods", help="periods from rest per frequency of the "
                                               "timed runs, the same for solve_ivp and the engine [-]"),
+        fig19: bool = typer.Option(False, "--fig19", help="time the seed 000 Fig 19 set instead (configs/bench/"
+                                   "fig19.yaml: 8 frictions, 100 x 100, 200 + 30 periods from rest)"),
+        Pd_num: Optional[int] = typer.Option(None, "--Pd-num", help="with --fig19: amplitudes actually run (a "
+                                             "subset of the grid; the wall time is also extrapolated) [-]"),
+        f_num: Optional[int] = typer.Option(None, "--f-num", help="with --fig19: frequencies actually run [-]"),
+        startup: bool = typer.Option(False, "--startup", help="time start-up instead: `capsule-cli --help` and a "
+                                     "warm 20-period simulate, fresh processes"),
         quiet: bool = QUIET,
     ):
         """Benchmark (contract section 6): the engine against scipy solve_ivp with events, same runs."""
-        from ..dynamics.bench import run_bench
+        from .. import progress as PR
+        from ..dynamics import bench as B
         from ..tables import _jsonable, write_json_atomic
 
-        rec = run_bench(engine_periods=engine_periods, baseline_periods=baseline_periods)
+        if startup:
+            rec = B.run_startup_bench()
+        elif fig19:
+            if (Pd_num is not None and Pd_num < 1) or (f_num is not None and f_num < 1):
+                raise InputError("--Pd-num and --f-num must be >= 1")
+            PR.compile_notice(quiet)
+            cfg_n = (Pd_num or 100) * (f_num or 100) * 8
+            with PR.task("bench --fig19", cfg_n, quiet) as advance:
+                rec = B.run_fig19_bench(Pd_num=Pd_num, f_num=f_num, progress=advance)
+        else:
+            PR.compile_notice(quiet)
+            rec = B.run_bench(engine_periods=engine_periods, baseline_periods=baseline_periods)
         if out is not None:
             write_json_atomic(out, rec)
         if json_out:
             typer.echo(json.dumps(_jsonable(rec)))
+        elif not quiet and (startup or fig19):
+            typer.echo(json.dumps(_jsonable(rec), indent=1), err=True)
         elif not quiet:
             typer.echo(f"engine {rec['periods_per_s']:.4g} periods/s, baseline ({rec['baseline_method']}) "
                        f"{rec['baseline_periods_per_s']:.4g} periods/s, speedup {rec['speedup']:.0f} "

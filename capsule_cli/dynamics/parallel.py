@@ -18,7 +18,10 @@ runs that column of all rows in parallel.
 from __future__ import annotations
 
 import math
+import signal
+import threading
 import time
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -26,6 +29,35 @@ from . import engine as E
 
 #: default wall time per chunk [s]: short enough that an interrupt lands within ~1 s
 TARGET_CHUNK_S = 0.2
+
+
+@contextmanager
+def deferred_signals(signals=(signal.SIGINT, signal.SIGTERM)):
+    """Hold SIGINT / SIGTERM while compiled code runs, then deliver them to the previous handlers.
+
+    A Python handler running while numba code is inside a call turns into "returned a result
+    with an exception set" (SystemError); holding the signal in a flag and re-raising it after
+    the call lets the process-level handlers (KeyboardInterrupt, exit 130 / 143) act cleanly,
+    one chunk later at most. Outside the main thread (where handlers cannot be set) a no-op.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    got: list[int] = []
+    prev = {}
+    for sig in signals:
+        h = signal.getsignal(sig)
+        if h in (signal.SIG_IGN, None):  # ignored (e.g. a background job): leave it so
+            continue
+        prev[sig] = h
+        signal.signal(sig, lambda s, _f: got.append(s))
+    try:
+        yield
+    finally:
+        for sig, h in prev.items():
+            signal.signal(sig, h)
+        for sig in dict.fromkeys(got):
+            signal.raise_signal(sig)
 
 
 def continuation_state(final: np.ndarray) -> np.ndarray:
@@ -71,7 +103,8 @@ def run_points(P: np.ndarray, opts: np.ndarray, states0: np.ndarray, n_transient
         k = int(chunk) if chunk else _next_size(i, t_run, target_chunk_s, n - i, minimum)
         k = max(1, min(k, n - i))
         t0 = time.perf_counter()
-        st, per, _, fin = E.run_many(P[i:i + k], opts, states0[i:i + k], int(n_transient), int(n_record))
+        with deferred_signals():
+            st, per, _, fin = E.run_many(P[i:i + k], opts, states0[i:i + k], int(n_transient), int(n_record))
         t_run += time.perf_counter() - t0
         status[i:i + k] = st
         periods[i:i + k] = per
@@ -97,7 +130,9 @@ def run_rows_continuation(P: np.ndarray, opts: np.ndarray, states0: np.ndarray, 
     periods = np.zeros((rows, cols, int(n_record), E.N_PERIOD_COLS))
     state = np.ascontiguousarray(states0, dtype=float).copy()
     for j in range(cols):
-        st, per, _, fin = E.run_many(np.ascontiguousarray(P[:, j]), opts, state, int(n_transient), int(n_record))
+        with deferred_signals():
+            st, per, _, fin = E.run_many(np.ascontiguousarray(P[:, j]), opts, state, int(n_transient),
+                                         int(n_record))
         status[:, j] = st
         periods[:, j] = per
         state = continuation_state(fin)

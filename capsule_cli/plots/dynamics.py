@@ -115,7 +115,7 @@ def magnify_figure(df: pd.DataFrame, title: str, path: str | Path, scale: str = 
         axes[k // ncols][k % ncols].set_visible(False)
     if scale == "shared" and mesh is not None:
         fig.colorbar(mesh, ax=axes, label="magnification factor $A_f$ [-]")
-    if "protocol" in df.columns:
+    if "protocol" in df.columns and "protocol:" not in title:
         prots = "/".join(dict.fromkeys(df["protocol"].astype(str).tolist()))
         title = f"{title}\nprotocol: {prots} ({PROTOCOL_TEXT.get(prots, prots)}); star: peak of each panel"
     fig.suptitle(title, fontsize=8)

@@ -1,0 +1,104 @@
+"""Chunked runs equal unchunked ones exactly (issue 13): the parallel runner, magnify chunks along P_d
+gathered into one table, and the vectorised per-point summaries against the per-point reference."""
+import numpy as np
+import pandas as pd
+import pytest
+
+from capsule_cli.cli import main
+from capsule_cli.dynamics import engine as E
+from capsule_cli.dynamics.model import Drive, EngineOptions, friction_preset, load_model, pack_params
+from capsule_cli.dynamics.parallel import period_numbers, run_points, summarize
+from capsule_cli.dynamics.sweep import period_number
+from capsule_cli.steps.dynamics import Pd_chunks, magnify_table
+from capsule_cli.tables import read_table
+
+pytestmark = pytest.mark.xdist_group("dynamics")
+
+MODEL, _ = load_model("prototype_one_sided")
+
+
+def _grid(fr, Pd=(0.05, 0.2, 0.4), f=(22.0, 30.0, 38.0)):
+    return np.array([pack_params(MODEL, Drive(a, b), fr) for a in Pd for b in f])
+
+
+@pytest.mark.parametrize("chunk", [1, 2, 4, None])
+def test_run_points_chunking_is_exact(chunk):
+    """Any chunk size (and the adaptive one) gives the single-call result bit for bit."""
+    P = _grid(friction_preset("coulomb", 0.17))
+    opts = EngineOptions(energy=False).pack()
+    s0 = np.zeros((len(P), 4))
+    st, per, _, fin = E.run_many(P, opts, s0, 40, 6)
+    seen = []
+    st2, per2, fin2 = run_points(P, opts, s0, 40, 6, progress=seen.append, chunk=chunk)
+    assert np.array_equal(st, st2) and (st == E.STATUS_OK).all()
+    assert np.array_equal(per, per2) and np.array_equal(fin, fin2)
+    assert sum(seen) == len(P) and (chunk is None or max(seen) <= chunk)
+
+
+def test_summaries_match_the_per_point_functions():
+    P = _grid(friction_preset("eq23"))
+    opts = EngineOptions(energy=False).pack()
+    st, per, _ = run_points(P, opts, np.zeros((len(P), 4)), 60, 12)
+    Pd, f = P[:, E.I_PD], P[:, E.I_F]
+    sm = summarize(per, Pd, f)
+    for i in range(len(P)):
+        r = per[i]
+        assert sm["period_number"][i] == period_number(r[:, E.P_XR0], r[:, E.P_VR0])
+        assert sm["velocity_mm_s"][i] == r[:, E.P_DISP].sum() / (len(r) * (1.0 / f[i])) * 1e3
+        assert sm["Af"][i] == r[:, E.P_MAXF].max() / Pd[i]
+    assert sm["impacts_per_period"].max() >= 1.0  # the grid has impacting points
+
+
+def test_period_numbers_known_sequences():
+    t = np.arange(12)
+    xr = np.vstack([np.full(12, 1e-3), 1e-3 * (t % 2), 1e-3 * (t % 3), 1e-3 * np.sin(t * 1.234)])
+    assert list(period_numbers(xr, xr)) == [1, 2, 3, 0]
+
+
+def test_Pd_chunks_cover_the_grid():
+    assert Pd_chunks(10, 3) == [(0, 3), (3, 7), (7, 10)]
+    assert Pd_chunks(2, 5) == [(0, 1), (1, 2)]
+    assert Pd_chunks(7, 1) == [(0, 7)]
+
+
+@pytest.mark.parametrize("protocol", ["rest", "up"])
+def test_magnify_chunks_gathered_equal_unchunked(tmp_path, protocol):
+    """Chunks along P_d (each running the whole f axis) joined by --gather equal one unchunked run,
+    for every-point-from-rest and for continuation in f."""
+    common = ["--law", "eq22", "--Pf-N", "inf", "--Pd-num", "3", "--f-start-Hz", "20", "--f-stop-Hz", "36",
+              "--f-num", "4", "--transient-periods", "40", "--periods", "6", "--protocol", protocol, "--quiet"]
+    full = tmp_path / "full.parquet"
+    assert main(["magnify", "--out", str(full), *common]) == 0
+    parts = []
+    for a, b in Pd_chunks(3, 2):
+        p = tmp_path / f"c{a}.parquet"
+        assert main(["magnify", "--out", str(p), "--Pd-rows", f"{a}:{b}", *common]) == 0
+        parts.append(p)
+    g = tmp_path / "gathered.parquet"
+    assert main(["magnify", "--out", str(g), "--gather", str(parts[1]), "--gather", str(parts[0]), "--quiet"]) == 0
+    A, B = read_table(full), read_table(g)
+    pd.testing.assert_frame_equal(A, B, check_exact=True)
+    assert list(A["friction"].unique()) == ["inf", "eq22"] and set(A["protocol"]) == {protocol}
+    assert len(A) == 2 * 3 * 4 and np.isnan(A[A["friction"] == "eq22"]["Pf_N"]).all()
+    # overlapping chunks are refused, exit 2
+    assert main(["magnify", "--out", str(tmp_path / "x.parquet"), "--gather", str(parts[0]), "--gather",
+                 str(parts[0]), "--quiet"]) == 2
+
+
+def test_magnify_table_rows_equal_the_sweep_points():
+    """A magnify row is the same computation as a sweep point over f from rest (same engine calls)."""
+    from capsule_cli.dynamics.sweep import run_sweep
+
+    f = np.array([24.0, 30.0, 36.0])
+    df = magnify_table(MODEL, [0.15], f, ["2.5"], "rest", 50, 8)
+    sw = run_sweep(MODEL, Drive(0.15, 24.0), friction_preset("coulomb", 2.5), "f_Hz", f, "rest", 50, 8)
+    assert np.array_equal(df["Af"].to_numpy(), sw.points["Af"].to_numpy())
+    assert np.array_equal(df["velocity_mm_s"].to_numpy(), sw.points["velocity_mm_s"].to_numpy())
+
+
+def test_magnify_bad_inputs_exit_2(tmp_path):
+    out = str(tmp_path / "m.parquet")
+    assert main(["magnify", "--out", out, "--law", "eq24", "--Pd-num", "1", "--f-num", "1", "--quiet"]) == 2
+    assert main(["magnify", "--out", out, "--Pd-rows", "2:1", "--Pd-num", "3", "--f-num", "1", "--quiet"]) == 2
+    assert main(["magnify", "--out", out, "--Pf-N", "-1", "--Pd-num", "1", "--f-num", "1", "--quiet"]) == 2
+    assert not (tmp_path / "m.parquet").exists()
