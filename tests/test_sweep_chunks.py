@@ -9,7 +9,7 @@ from capsule_cli.dynamics import engine as E
 from capsule_cli.dynamics.model import Drive, EngineOptions, friction_preset, load_model, pack_params
 from capsule_cli.dynamics.parallel import period_numbers, run_points, summarize
 from capsule_cli.dynamics.sweep import period_number
-from capsule_cli.steps.dynamics import Pd_chunks, magnify_table
+from capsule_cli.steps.dynamics import Pd_chunks, magnify_table, plan_magnify_jobs
 from capsule_cli.tables import read_table
 
 pytestmark = pytest.mark.xdist_group("dynamics")
@@ -102,3 +102,43 @@ def test_magnify_bad_inputs_exit_2(tmp_path):
     assert main(["magnify", "--out", out, "--Pd-rows", "2:1", "--Pd-num", "3", "--f-num", "1", "--quiet"]) == 2
     assert main(["magnify", "--out", out, "--Pf-N", "-1", "--Pd-num", "1", "--f-num", "1", "--quiet"]) == 2
     assert not (tmp_path / "m.parquet").exists()
+
+
+def test_plan_splits_costly_maps_and_groups_tiny_ones():
+    cost = {"coulomb": 10.0, "fixed": 10.0, "eq22": 1000.0, "eq23": 1000.0}
+    jobs = plan_magnify_jobs(["0.007", "2.5", "inf", "eq22"], 10, 10, 100, cost, target_job_s=0.5, threads=2)
+    # Coulomb/fixed maps: 10*10*100*10e-6/2 = 0.05 s each -> one job; eq22: 5 s -> 10 chunks of 1 row
+    assert jobs[0]["frictions"] == ["0.007", "2.5", "inf"] and jobs[0]["rows"] == (0, 10)
+    eq = [j for j in jobs if j["frictions"] == ["eq22"]]
+    assert [j["rows"] for j in eq] == [(i, i + 1) for i in range(10)]
+    assert abs(sum(j["est_s"] for j in jobs) - (3 * 0.05 + 5.0)) < 1e-9
+    assert len({j["name"] for j in jobs}) == len(jobs)
+
+
+def test_planned_jobs_gathered_equal_the_unchunked_map(tmp_path):
+    """The Snakemake path: jobs from the cost plan (a split speed-law map, grouped Coulomb maps),
+    continuation protocol, gathered in the config's friction order == one unchunked call."""
+    fr = ["0.17", "eq23", "inf"]
+    grid = ["--Pd-num", "4", "--f-start-Hz", "24", "--f-stop-Hz", "36", "--f-num", "3", "--transient-periods", "30",
+            "--periods", "5", "--protocol", "down", "--quiet"]
+    fargs = ["--Pf-N", "0.17", "--law", "eq23", "--Pf-N", "inf"]
+    cost = {"coulomb": 10.0, "fixed": 10.0, "eq22": 1000.0, "eq23": 1000.0}
+    jobs = plan_magnify_jobs(fr, 4, 3, 35, cost, target_job_s=0.05)
+    assert len(jobs) == 5  # Coulomb + fixed grouped; eq23 (0.42 s > 0.05 s) in 4 chunks of one P_d row
+    parts = []
+    for j in jobs:
+        p = tmp_path / f"{j['name']}.parquet"
+        ja = []
+        for x in j["frictions"]:
+            ja += ["--law", x] if x.startswith("eq") else ["--Pf-N", x]
+        assert main(["magnify", "--out", str(p), *ja, "--Pd-rows", "{}:{}".format(*j["rows"]), *grid]) == 0
+        parts.append(p)
+    g = tmp_path / "g.parquet"
+    assert main(["magnify", "--out", str(g), *fargs, *sum((["--gather", str(p)] for p in parts[::-1]), []),
+                 "--quiet"]) == 0
+    full = tmp_path / "full.parquet"
+    assert main(["magnify", "--out", str(full), *fargs, *grid]) == 0
+    pd.testing.assert_frame_equal(read_table(full), read_table(g), check_exact=True)
+    # a missing chunk is an incomplete map: exit 2
+    assert main(["magnify", "--out", str(tmp_path / "x.parquet"), *fargs,
+                 *sum((["--gather", str(p)] for p in parts[:-1]), []), "--quiet"]) == 2

@@ -177,7 +177,8 @@ def register(app: typer.Typer) -> None:
     ):
         """Magnification factor maps A_f = max|F_i|/P_d over (P_d, f) (seed 000 eq 24, Fig 19)."""
         from ..progress import compile_notice, exit_on_interrupt, task
-        from ..steps.dynamics import MAGNIFY, gather_magnify, load_fig19, magnify_table, resolve_model
+        from ..steps.dynamics import (MAGNIFY, gather_magnify, load_fig19, magnify_friction, magnify_table,
+                                      resolve_model)
         from ..tables import provenance, read_table, write_table
 
         if scale not in ("shared", "panel"):
@@ -186,9 +187,12 @@ def register(app: typer.Typer) -> None:
             if Pd_rows is not None:
                 raise InputError("--gather joins chunks: do not give --Pd-rows with it")
             tabs = [read_table(p) for p in gather]
-            df = gather_magnify(tabs)
+            order = ([str(x) for x in load_fig19()["frictions"]] if fig19 else []) + \
+                [str(x) for x in (Pf_N or [])] + list(law or [])
+            df = gather_magnify(tabs, [magnify_friction(x)[0] for x in order] or None)
             prov = dict(tabs[0].attrs.get("provenance", {}))
             prov.pop("Pd_rows", None)
+            prov["frictions"] = list(dict.fromkeys(df["friction"].tolist()))
             base = ("package", "version", "git_commit", "config_hash", "seed", "synthetic", "command")
             prov = provenance(**{k: v for k, v in prov.items() if k not in base},
                               gathered_from=[str(p) for p in gather])

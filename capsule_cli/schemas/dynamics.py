@@ -87,9 +87,20 @@ class MagnifyMap(Strict):
     f_num: int = Field(default=71, ge=1, description="number of frequencies [-]")
     Pf_N: list[float] = Field(default_factory=lambda: [0.007, 0.17, 2.5, 4.5, 10.0, float("inf")],
                               description="Coulomb levels [N] (seed 000 Fig 19; .inf = shell fixed)")
+    laws: list[Literal["eq22", "eq23"]] = Field(default_factory=lambda: ["eq22", "eq23"],
+                                                description="speed-law frictions of seed 000 Fig 19 (F_c1e eq 22, "
+                                                            "F_c4e eq 23)")
     transient_periods: int = Field(default=200, ge=0, description="periods discarded per point [-]")
     recorded_periods: int = Field(default=30, ge=1, description="periods recorded per point [-]")
     protocol: Protocol = Field(default="rest", description="initial conditions (rest, or up/down in f)")
+    target_job_s: float = Field(default=300.0, gt=0, description="target wall time of one map job [s]: maps are "
+                                "split along P_d into jobs of about this length, tiny maps grouped into one job")
+    threads_per_job: int = Field(default=2, ge=1, description="threads (cores) of one map job [-]")
+    cost_us_per_period: dict[Literal["coulomb", "fixed", "eq22", "eq23"], float] = Field(
+        default_factory=lambda: {"coulomb": 15.0, "fixed": 10.0, "eq22": 1300.0, "eq23": 1100.0},
+        description="engine cost per simulated period on one core [us], by friction kind, measured by "
+                    "`capsule-cli bench --fig19` (solve_ivp_sample engine_s / periods; 2-core dev machine, loaded, "
+                    "2026-11-23): sizes the map jobs")
 
 
 class DynamicsStudy(Strict):

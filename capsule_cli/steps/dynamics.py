@@ -303,25 +303,79 @@ def magnify_table(model: CapsuleModel, Pd_values, f_values, frictions, protocol:
     })
 
 
-def gather_magnify(tables: list[pd.DataFrame]) -> pd.DataFrame:
-    """Join magnify chunks (split along P_d) into one table, rows ordered as an unchunked run.
+def gather_magnify(tables: list[pd.DataFrame], order: list[str] | None = None) -> pd.DataFrame:
+    """Join magnify chunks (split along P_d and/or by friction) into one table.
 
-    Raises InputError on overlapping rows or chunks with different frictions or protocols.
+    Rows are ordered as an unchunked run: frictions in ``order`` (default: first appearance),
+    then P_d, then f. Raises InputError on overlapping rows, mixed protocols, a friction
+    missing from ``order``, or a friction whose (P_d, f) grid is incomplete (when the chunks'
+    provenance gives the grid).
     """
     if not tables:
         raise InputError("magnify --gather: no chunk tables given")
-    fr = [list(dict.fromkeys(t["friction"].tolist())) for t in tables]
-    if any(x != fr[0] for x in fr):
-        raise InputError("magnify --gather: the chunks have different frictions")
     if len({tuple(dict.fromkeys(t["protocol"].tolist())) for t in tables}) != 1:
         raise InputError("magnify --gather: the chunks have different protocols")
     df = pd.concat(tables, ignore_index=True)
-    rank = {lab: k for k, lab in enumerate(fr[0])}
+    seen = list(dict.fromkeys(df["friction"].tolist()))
+    order = list(order) if order else seen
+    missing = [x for x in seen if x not in order]
+    if missing:
+        raise InputError(f"magnify --gather: chunk friction(s) {', '.join(missing)} not among {', '.join(order)}")
+    rank = {lab: k for k, lab in enumerate(order)}
     df = df.assign(_r=df["friction"].map(rank).astype(int)).sort_values(["_r", "Pd_N", "f_Hz"], kind="stable")
     df = df.drop(columns="_r").reset_index(drop=True)
     if df.duplicated(["friction", "Pd_N", "f_Hz"]).any():
         raise InputError("magnify --gather: chunks overlap (a (friction, P_d, f) point appears twice)")
+    grids = {(tuple(t.attrs.get("provenance", {}).get("Pd_grid_N") or ()),
+              tuple(t.attrs.get("provenance", {}).get("f_grid_Hz") or ())) for t in tables}
+    if len(grids) == 1:
+        (pg, fg), = grids
+        if pg and fg:
+            want = int(pg[2]) * int(fg[2])
+            counts = df.groupby("friction", sort=False).size()
+            short = [f"{k} ({v} of {want})" for k, v in counts.items() if v != want]
+            if short:
+                raise InputError(f"magnify --gather: incomplete map(s): {', '.join(short)} points")
     return df
+
+
+def friction_kind(spec) -> str:
+    """Cost class of a magnify friction: coulomb, fixed, eq22 or eq23."""
+    label = magnify_friction(spec)[0]
+    return label if label in ("fixed", "eq22", "eq23") else ("fixed" if label == "inf" else "coulomb")
+
+
+def plan_magnify_jobs(frictions, Pd_num: int, f_num: int, periods_per_point: int,
+                      cost_us_per_period: dict[str, float], target_job_s: float, threads: int = 1) -> list[dict]:
+    """Split magnify work into jobs of about ``target_job_s`` [s] wall time each.
+
+    Estimated cost of a friction's map: points x periods x ``cost_us_per_period[kind]`` [us on one
+    core] / ``threads``. A map estimated above the target is split along P_d into near-equal
+    row ranges (each running the whole f axis, so continuation gives the same result); maps
+    below it are grouped, first fit in the given order, into jobs of whole maps.
+    Returns [{'name', 'frictions' (labels), 'rows' (start, stop), 'est_s'}].
+    """
+    jobs: list[dict] = []
+    small: list[dict] = []
+    for spec in frictions:
+        label = magnify_friction(spec)[0]
+        est = Pd_num * f_num * periods_per_point * cost_us_per_period[friction_kind(spec)] * 1e-6 / max(1, threads)
+        if est > target_job_s and Pd_num > 1:
+            n = int(math.ceil(est / target_job_s))
+            for a, b in Pd_chunks(Pd_num, n):
+                jobs.append({"frictions": [label], "rows": (a, b), "est_s": est * (b - a) / Pd_num})
+            continue
+        for g in small:
+            if g["est_s"] + est <= target_job_s:
+                g["frictions"].append(label)
+                g["est_s"] += est
+                break
+        else:
+            small.append({"frictions": [label], "rows": (0, Pd_num), "est_s": est})
+    out = small + jobs
+    for k, j in enumerate(out):
+        j["name"] = f"job{k:03d}"
+    return out
 
 
 def Pd_chunks(n_Pd: int, n_chunks: int) -> list[tuple[int, int]]:

@@ -5,7 +5,7 @@
 DYN = STUDY.dynamics
 DYN_DIR = f"{RESULTS}/dynamics"
 DYN_PKG = pkg("dynamics/engine.py", "dynamics/model.py", "dynamics/run.py", "dynamics/sweep.py",
-              "steps/dynamics.py", "cli/dynamics.py")
+              "dynamics/parallel.py", "steps/dynamics.py", "cli/dynamics.py")
 DYN_CASES = {c.label: c for c in DYN.frequency_sweeps.cases}
 DYN_DUTY_F = [f"{f:g}" for f in DYN.duty_map.f_Hz]
 
@@ -64,26 +64,67 @@ rule dynamics_sweep_duty:
         "--label duty_f{wildcards.f} > {log} 2>&1"
 
 
-rule dynamics_magnify:
-    """Magnification factor maps (seed 000 eq 24, Fig 19)."""
+# Magnification maps, split into jobs sized from the measured cost per period (config
+# dynamics.magnify.cost_us_per_period, target_job_s): large maps along P_d (every job runs the
+# whole f axis, so continuation protocols give the same result), tiny maps grouped into one job.
+from capsule_cli.steps.dynamics import plan_magnify_jobs
+
+DYN_MG = DYN.magnify
+DYN_MG_FRICTIONS = [f"{p:g}" for p in DYN_MG.Pf_N] + list(DYN_MG.laws)
+DYN_MG_JOBS = {j["name"]: j for j in plan_magnify_jobs(
+    DYN_MG_FRICTIONS, DYN_MG.Pd_num, DYN_MG.f_num, DYN_MG.transient_periods + DYN_MG.recorded_periods,
+    DYN_MG.cost_us_per_period, DYN_MG.target_job_s, DYN_MG.threads_per_job)}
+
+
+def _mg_fric_args(labels):
+    return " ".join(f"--law {x}" if x in ("eq22", "eq23") else f"--Pf-N {x}" for x in labels)
+
+
+rule dynamics_magnify_chunk:
+    """One magnify job: some frictions over a range of P_d rows (seed 000 eq 24, Fig 19)."""
     input:
         DYN_PKG,
-        params=str(CONFIGS / "params" / f"{DYN.magnify.model}.yaml"),
+        params=str(CONFIGS / "params" / f"{DYN_MG.model}.yaml"),
+        laws=str(CONFIGS / "params" / "friction_laws_dynamics.yaml"),
     output:
-        f"{DYN_DIR}/magnify.parquet",
+        f"{DYN_DIR}/magnify_chunks/{{job}}.parquet",
     params:
-        mg=DYN.magnify.model_dump(),
-        pf=" ".join(f"--Pf-N {p}" for p in DYN.magnify.Pf_N),
+        mg=DYN_MG.model_dump(),
+        fric=lambda wc: _mg_fric_args(DYN_MG_JOBS[wc.job]["frictions"]),
+        rows=lambda wc: "{}:{}".format(*DYN_MG_JOBS[wc.job]["rows"]),
+    threads: DYN_MG.threads_per_job
+    resources:
+        runtime=lambda wc: max(10, int(3 * DYN_MG_JOBS[wc.job]["est_s"] / 60) + 5),  # minutes, 3x the estimate
+        mem_mb=2000,
+    wildcard_constraints:
+        job="job[0-9]+",
     log:
-        f"{DYN_DIR}/logs/magnify.log",
+        f"{DYN_DIR}/logs/magnify_{{job}}.log",
     benchmark:
-        f"{DYN_DIR}/benchmarks/magnify.tsv"
+        f"{DYN_DIR}/benchmarks/magnify_{{job}}.tsv"
     shell:
-        "capsule-cli magnify --quiet --out {output} --model {params.mg[model]} {params.pf} "
+        "NUMBA_NUM_THREADS={threads} capsule-cli magnify --quiet --out {output} --model {params.mg[model]} "
+        "{params.fric} --Pd-rows {params.rows} "
         "--Pd-start-N {params.mg[Pd_start_N]} --Pd-stop-N {params.mg[Pd_stop_N]} --Pd-num {params.mg[Pd_num]} "
         "--f-start-Hz {params.mg[f_start_Hz]} --f-stop-Hz {params.mg[f_stop_Hz]} --f-num {params.mg[f_num]} "
         "--protocol {params.mg[protocol]} --transient-periods {params.mg[transient_periods]} "
         "--periods {params.mg[recorded_periods]} > {log} 2>&1"
+
+
+rule dynamics_magnify:
+    """Gather the magnify jobs into one table (rows as an unchunked run)."""
+    input:
+        chunks=[f"{DYN_DIR}/magnify_chunks/{j}.parquet" for j in DYN_MG_JOBS],
+    output:
+        f"{DYN_DIR}/magnify.parquet",
+    params:
+        fric=_mg_fric_args(DYN_MG_FRICTIONS),
+        chunks=lambda wc, input: " ".join(f"--gather {c}" for c in input.chunks),
+    localrule: True
+    log:
+        f"{DYN_DIR}/logs/magnify_gather.log",
+    shell:
+        "capsule-cli magnify --quiet --out {output} {params.fric} {params.chunks} > {log} 2>&1"
 
 
 DYN_SWEEPS = [(label, c.figure, prot) for label, c in DYN_CASES.items() for prot in DYN.frequency_sweeps.protocols]
