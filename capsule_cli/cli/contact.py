@@ -8,8 +8,6 @@ import math
 from enum import Enum
 from pathlib import Path
 
-import numpy as np
-import pandas as pd
 import typer
 
 from ..errors import InputError
@@ -53,6 +51,9 @@ def _speeds(speed_mm_s: str | None, speeds: str | None) -> list[float]:
 
 def _summary(df: pd.DataFrame) -> str:
     """A short text table: rows per model/statistic/R_i/end/wall, columns a few speeds."""
+    import numpy as np
+    import pandas as pd
+
     speeds = sorted(df["speed_mm_s"].unique())
     if len(speeds) > 6:
         idx = np.unique(np.linspace(0, len(speeds) - 1, 6).round().astype(int))
@@ -112,6 +113,8 @@ def register(app: typer.Typer) -> None:
         Defaults reproduce seed 003: Hertz a = 0.236 mm, P_avg 0.55 kPa, P_max 0.71 kPa
         (0.4 g); hoop 10.80 kPa at 4 mm/s and 10.92 kPa at 10 mm/s (R_i = 5 mm).
         """
+        import numpy as np
+
         from ..steps import contact as step
         from ..tables import provenance, write_table
         from ..config import config_hash, load_param_set
@@ -247,6 +250,9 @@ def register(app: typer.Typer) -> None:
         Writes parameters with 95 % intervals, R², the CV table and the chosen order
         (fit.json), the fitted curves with 95 % bands (curve.parquet), residuals and a figure.
         """
+        import numpy as np
+        import pandas as pd
+
         from ..models.contact import relaxation_pressure_factor
         from ..plots.contact import plot_relax_fit
         from ..steps import contact as cstep

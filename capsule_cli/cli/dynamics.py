@@ -6,7 +6,6 @@ import math
 from pathlib import Path
 from typing import List, Optional
 
-import numpy as np
 import typer
 
 from ..errors import InputError
@@ -129,6 +128,8 @@ def register(app: typer.Typer) -> None:
         quiet: bool = QUIET,
     ):
         """Bifurcation / progression sweep over one parameter (Poincare points, velocity, impacts, A_f)."""
+        import numpy as np
+
         from ..progress import compile_notice, exit_on_interrupt, task
         from ..steps.dynamics import sweep_to_dir
 
@@ -176,6 +177,8 @@ def register(app: typer.Typer) -> None:
         quiet: bool = QUIET,
     ):
         """Magnification factor maps A_f = max|F_i|/P_d over (P_d, f) (seed 000 eq 24, Fig 19)."""
+        import numpy as np
+
         from ..progress import compile_notice, exit_on_interrupt, task
         from ..steps.dynamics import (MAGNIFY, gather_magnify, load_fig19, magnify_friction, magnify_table,
                                       resolve_model)

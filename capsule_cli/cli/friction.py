@@ -6,8 +6,6 @@ from enum import Enum
 from pathlib import Path
 from typing import Optional
 
-import numpy as np
-import pandas as pd
 import typer
 
 from ..errors import InputError
@@ -197,6 +195,8 @@ def plot_speed_cmd(
     quiet: bool = QUIET,
 ):
     """Figure: friction vs speed, Case 1 and Case 4 (seed 000 Figs 9c and 13c)."""
+    import numpy as np
+
     from ..plots.friction import plot_friction_vs_speed
     from ..steps.friction import parse_grid, read_friction_reference
     from ..tables import read_table
