@@ -1,0 +1,44 @@
+"""bench --fig19 and the per-period / per-event figures of bench --json (issue 13 item 2), on tiny
+grids: the record's numbers are consistent with each other and with magnify itself."""
+import math
+
+import numpy as np
+import pytest
+
+from capsule_cli.dynamics.bench import run_bench, run_fig19_bench
+from capsule_cli.dynamics.model import load_model
+from capsule_cli.steps.dynamics import load_fig19, magnify_table
+
+pytestmark = pytest.mark.xdist_group("dynamics")
+
+
+def test_fig19_bench_record_on_a_subset():
+    rec = run_fig19_bench(Pd_num=2, f_num=2, frictions=["0.17", "eq23"], sample_periods=2)
+    cfg = load_fig19()
+    nt, nr = cfg["transient_periods"], cfg["recorded_periods"]
+    assert rec["grid"] == {"Pd_num": 2, "f_num": 2, "frictions": ["0.17", "eq23"], "full_grid": False}
+    walls = rec["wall_s_per_friction"]
+    assert math.isclose(rec["fig19_wall_s"], sum(walls.values()))
+    assert math.isclose(rec["fig19_periods_per_s"], 2 * 2 * 2 * (nt + nr) / rec["fig19_wall_s"])
+    full = cfg["Pd_num"] * cfg["f_num"] * len(cfg["frictions"])
+    assert math.isclose(rec["fig19_wall_s_extrapolated"], rec["fig19_wall_s"] * full / 8)
+    for s in rec["solve_ivp_sample"].values():
+        assert s["engine_s"] > 0 and s["solve_ivp_s"] > 0
+        assert math.isclose(s["solve_ivp_over_engine"], s["solve_ivp_s"] / s["engine_s"])
+    # the peaks are those of the same maps computed by magnify
+    m, _ = load_model(cfg["model"])
+    Pd = np.linspace(cfg["Pd_start_N"], cfg["Pd_stop_N"], 2)
+    f = np.linspace(cfg["f_start_Hz"], cfg["f_stop_Hz"], 2)
+    df = magnify_table(m, Pd, f, ["0.17", "eq23"], cfg["protocol"], nt, nr)
+    for lab, pk in rec["max_Af_per_friction"].items():
+        assert pk["max_Af"] == df[df["friction"] == lab]["Af"].max()
+
+
+def test_bench_reports_us_per_period_and_per_event():
+    rec = run_bench(freqs=(30.0,), engine_periods=5, baseline_periods=3, accuracy_periods=1, transient_periods=20,
+                    velocity_periods=2, methods=("RK45",), repeat=1, baseline_repeat=2)
+    assert math.isclose(rec["us_per_period"], 1e6 / rec["periods_per_s"])
+    # at 30 Hz the run impacts every period (contact on and off): at least two events per period
+    assert rec["events"] >= 2 * 3
+    assert math.isclose(rec["us_per_event"], rec["us_per_period"] * 3 / rec["events"])
+    assert rec["baseline_repeat"] == 2
