@@ -49,17 +49,18 @@ def _needs_compile(dispatcher) -> bool:
         return False
 
 
-def compile_notice(quiet: bool = False) -> bool:
+def compile_notice(quiet: bool = False, kernels: tuple[str, ...] = ("run_many",)) -> bool:
     """Say on stderr (terminal only) that the engine is being compiled, when it is; return whether it is.
 
     The first-ever call (or the first after the engine's source changed) compiles the numba
     engine, which takes tens of seconds; afterwards the on-disk cache loads in about a second.
+    ``kernels``: names of the engine's compiled entry points the command will call.
     """
     if quiet or not sys.stderr.isatty():
         return False
     from .dynamics import engine as E
 
-    if any(_needs_compile(d) for d in (E.run_many, E.run_core)):
+    if any(_needs_compile(getattr(E, k)) for k in kernels if hasattr(E, k)):
         sys.stderr.write("capsule-cli: compiling the dynamics engine (first run only, cached afterwards; "
                          "this can take a minute)...\n")
         sys.stderr.flush()

@@ -90,10 +90,12 @@ def register(app: typer.Typer) -> None:
         quiet: bool = QUIET,
     ):
         """One vibro-impact run (seed 000 eqs 19-23): trajectory, exact events, per-period table, energy balance."""
+        from ..progress import compile_notice
         from ..steps.dynamics import simulate_to_dir
 
         m, d, fr = _setup(model, set_, waveform, f_Hz, Pd_N, duty, friction, Pf_N, literal, v_min_mm_s,
                           law_speed_unit, static_N)
+        compile_notice(quiet, ("run_core",))
         s = simulate_to_dir(out, m, d, fr, periods, transient_periods, sample_rate_Hz, model_name=model)
         if not quiet:
             typer.echo(f"{out}: v = {s['average_velocity_mm_s']:.6g} mm/s, {s['impacts_per_period']} impacts/period, "
@@ -139,7 +141,7 @@ def register(app: typer.Typer) -> None:
                           law_speed_unit, static_N)
         state0 = _parse_state(initial_state)
         values = np.linspace(start, stop, num)
-        compile_notice(quiet)
+        compile_notice(quiet, ("run_many",))
         with exit_on_interrupt(), task(f"sweep {param}", num, quiet) as advance:
             meta = sweep_to_dir(out, m, d, fr, param, values, protocol, transient_periods, periods,
                                 model_name=model, label=label, progress=advance, state0=state0)
@@ -264,12 +266,12 @@ def register(app: typer.Typer) -> None:
         elif fig19:
             if (Pd_num is not None and Pd_num < 1) or (f_num is not None and f_num < 1):
                 raise InputError("--Pd-num and --f-num must be >= 1")
-            PR.compile_notice(quiet)
+            PR.compile_notice(quiet, ("run_many", "run_core"))
             cfg_n = (Pd_num or 100) * (f_num or 100) * 8
             with PR.task("bench --fig19", cfg_n, quiet) as advance:
                 rec = B.run_fig19_bench(Pd_num=Pd_num, f_num=f_num, progress=advance)
         else:
-            PR.compile_notice(quiet)
+            PR.compile_notice(quiet, ("run_core",))
             rec = B.run_bench(engine_periods=engine_periods, baseline_periods=baseline_periods)
         if out is not None:
             write_json_atomic(out, rec)
