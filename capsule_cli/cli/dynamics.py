@@ -182,25 +182,17 @@ def register(app: typer.Typer) -> None:
         import numpy as np
 
         from ..progress import compile_notice, exit_on_interrupt, task
-        from ..steps.dynamics import (MAGNIFY, gather_magnify, load_fig19, magnify_friction, magnify_table,
-                                      resolve_model)
-        from ..tables import provenance, read_table, write_table
+        from ..steps.dynamics import MAGNIFY, gather_magnify_files, load_fig19, magnify_table, resolve_model
+        from ..tables import provenance, write_table
 
         if scale not in ("shared", "panel"):
             raise InputError(f"--scale '{scale}': expected shared or panel")
         if gather:
             if Pd_rows is not None:
                 raise InputError("--gather joins chunks: do not give --Pd-rows with it")
-            tabs = [read_table(p) for p in gather]
             order = ([str(x) for x in load_fig19()["frictions"]] if fig19 else []) + \
                 [str(x) for x in (Pf_N or [])] + list(law or [])
-            df = gather_magnify(tabs, [magnify_friction(x)[0] for x in order] or None)
-            prov = dict(tabs[0].attrs.get("provenance", {}))
-            prov.pop("Pd_rows", None)
-            prov["frictions"] = list(dict.fromkeys(df["friction"].tolist()))
-            base = ("package", "version", "git_commit", "config_hash", "seed", "synthetic", "command")
-            prov = provenance(**{k: v for k, v in prov.items() if k not in base},
-                              gathered_from=[str(p) for p in gather])
+            df, prov = gather_magnify_files(gather, order)
         else:
             frictions: list = []
             if fig19:

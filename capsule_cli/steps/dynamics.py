@@ -339,6 +339,24 @@ def gather_magnify(tables: list[pd.DataFrame], order: list[str] | None = None) -
     return df
 
 
+def gather_magnify_files(paths, order=None) -> tuple[pd.DataFrame, dict]:
+    """Read magnify chunk tables and join them (:func:`gather_magnify`); return (table, provenance).
+
+    ``order``: friction specs giving the panel order (default: first appearance). The
+    provenance is the chunks' (grid, protocol, periods) plus the list of chunk files.
+    """
+    from ..tables import read_table
+
+    tabs = [read_table(p) for p in paths]
+    labels = [magnify_friction(x)[0] for x in (order or [])]
+    df = gather_magnify(tabs, labels or None)
+    prov = dict(tabs[0].attrs.get("provenance", {}))
+    base = ("package", "version", "git_commit", "config_hash", "seed", "synthetic", "command", "Pd_rows")
+    prov = {k: v for k, v in prov.items() if k not in base}
+    prov["frictions"] = list(dict.fromkeys(df["friction"].tolist()))
+    return df, provenance(**prov, gathered_from=[str(p) for p in paths])
+
+
 def friction_kind(spec) -> str:
     """Cost class of a magnify friction: coulomb, fixed, eq22 or eq23."""
     label = magnify_friction(spec)[0]
