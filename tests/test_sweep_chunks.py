@@ -142,3 +142,29 @@ def test_planned_jobs_gathered_equal_the_unchunked_map(tmp_path):
     # a missing chunk is an incomplete map: exit 2
     assert main(["magnify", "--out", str(tmp_path / "x.parquet"), *fargs,
                  *sum((["--gather", str(p)] for p in parts[:-1]), []), "--quiet"]) == 2
+
+
+def test_slurm_profile_dry_run_lists_chunked_jobs():
+    """`snakemake -n --profile workflow/profiles/slurm` works without a cluster and lists the map jobs
+    of the cost plan and the grouped small jobs."""
+    import os
+    import re
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from capsule_cli.config import validate_study_config, read_yaml
+
+    repo = Path(__file__).resolve().parents[1]
+    snk = Path(sys.executable).with_name("snakemake")
+    r = subprocess.run([str(snk), "-n", "--profile", "workflow/profiles/slurm"], cwd=repo, capture_output=True,
+                       text=True, env={**os.environ, "PYTHONPATH": str(repo)}, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    mg = validate_study_config(read_yaml(repo / "configs/study.yaml")).dynamics.magnify
+    plan = plan_magnify_jobs([f"{p:g}" for p in mg.Pf_N] + list(mg.laws), mg.Pd_num, mg.f_num,
+                             mg.transient_periods + mg.recorded_periods, mg.cost_us_per_period, mg.target_job_s,
+                             mg.threads_per_job)
+    out = r.stdout + r.stderr
+    n = re.search(r"dynamics_magnify_chunk\s+(\d+)", out)
+    assert n and int(n.group(1)) == len(plan) > 1
+    assert "Group job small" in out
