@@ -83,7 +83,7 @@ def run_points(P: np.ndarray, opts: np.ndarray, states0: np.ndarray, n_transient
 
     P: (n, N_PARAMS) engine parameter vectors [SI]; states0: (n, 4) initial states [SI].
     ``chunk`` fixes the chunk size [points]; by default the size adapts so a chunk takes
-    about ``target_chunk_s`` [s] (the first chunk has one point per thread, twice).
+    about ``target_chunk_s`` [s], never fewer points than threads (the first chunk has one per thread).
     ``progress(k)`` is called with the number of points finished after each chunk.
     """
     P = np.ascontiguousarray(P, dtype=float)
@@ -94,7 +94,7 @@ def run_points(P: np.ndarray, opts: np.ndarray, states0: np.ndarray, n_transient
     final = np.zeros((n, 6))
     try:
         import numba
-        minimum = 2 * int(numba.get_num_threads())
+        minimum = int(numba.get_num_threads())
     except Exception:  # pragma: no cover - numba is a hard dependency
         minimum = 2
     i = 0
