@@ -15,14 +15,17 @@ PROTOCOL_TEXT = {"rest": "every point from rest", "up": "continuation, f increas
 
 def bifurcation_figure(cases: list[tuple[str, pd.DataFrame, pd.DataFrame]], protocol: str, title: str,
                        path: str | Path, paper_lines: dict[str, float] | None = None) -> Path:
-    """Poincare V_r vs f (a) and average progression velocity vs f (b), one colour per case.
+    """Poincare V_r vs f (a) and average progression velocity vs f (b), one colour per friction case.
 
-    cases: [(label, points table, sweep (Poincare) table)] of frequency sweeps.
+    cases: [(legend name, points table, sweep (Poincare) table)] of frequency sweeps.
+    paper_lines: {short landmark name: f [Hz]} the paper reports; drawn as thin dotted lines
+    behind the data and named on a top frequency axis, never on the curves.
     """
-    fig, (ax1, ax2) = figure(nrows=2, width="page", height_in=5.0, sharex=True)
+    fig, (ax1, ax2) = figure(nrows=2, width="page", height_in=5.2, sharex=True)
     for i, (lab, pts, poin) in enumerate(cases):
         col = OKABE_ITO[i % len(OKABE_ITO)]
-        ax1.plot(poin["value"], poin["relative_velocity_mm_s"], ".", ms=1.2, mew=0, color=col, alpha=0.7)
+        ax1.plot(poin["value"], poin["relative_velocity_mm_s"], ".", ms=1.2, mew=0, color=col, alpha=0.7,
+                 rasterized=True)
         ax1.plot([], [], "o", ms=3, color=col, label=lab)
         p = pts.sort_values("value")
         ax2.plot(p["value"], p["velocity_mm_s"], ".-", ms=2, lw=0.6, color=col, label=lab)
@@ -30,17 +33,23 @@ def bifurcation_figure(cases: list[tuple[str, pd.DataFrame, pd.DataFrame]], prot
     for name, f in (paper_lines or {}).items():
         if f is not None and math.isfinite(f):
             at.setdefault(float(f), []).append(name)
-    for f, names in at.items():
+    for f in at:
         for ax in (ax1, ax2):
-            ax.axvline(f, color="0.5", lw=0.6, ls=":")
-        ax2.annotate(f"{' / '.join(names)} ({f:g} Hz)", (f, 1.0), xycoords=("data", "axes fraction"), rotation=90,
-                     va="top", ha="right", fontsize=6, color="0.35")
+            ax.axvline(f, color="0.55", lw=0.6, ls=":", zorder=0)
+    if at:
+        top = ax1.secondary_xaxis("top")
+        fs = sorted(at)
+        top.set_xticks(fs, [f"{' / '.join(at[f])}\n{f:g} Hz" for f in fs], fontsize=5.5, color="0.3")
+        top.tick_params(length=2, pad=1)
+        top.set_xlabel("paper's landmarks (seed 000 section 5.3), dotted", fontsize=6, color="0.3")
     ax1.set_ylabel(label("Poincaré $V_r$ at phase 0", "mm/s"))
-    ax2.set_ylabel(label("average velocity", "mm/s"))
+    ax2.set_ylabel(label("average capsule velocity", "mm/s"))
     ax2.set_xlabel(label("drive frequency f", "Hz"))
     ax2.axhline(0, color="k", lw=0.5)
-    ax1.legend(loc="upper left", markerscale=1.5)
-    ax1.set_title(f"{title}\nprotocol: {protocol} ({PROTOCOL_TEXT.get(protocol, protocol)})")
+    ax1.legend(loc="upper left", markerscale=1.5, title="shell friction", title_fontsize=6)
+    ax1.set_title("(a) relative velocity at the Poincaré section", loc="left", fontsize=7)
+    ax2.set_title("(b) progression", loc="left", fontsize=7)
+    fig.suptitle(f"{title}\nprotocol: {protocol} ({PROTOCOL_TEXT.get(protocol, protocol)})", fontsize=8)
     return save_figure(fig, path)
 
 
