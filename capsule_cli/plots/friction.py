@@ -67,10 +67,10 @@ def _reference_points(ax, ref: pd.DataFrame, scale: float, with_label: set):
         lab = None
         if key not in with_label:
             with_label.add(key)
-            lab = {"avg": f"published {row['source_type']}, avg",
-                   "min": f"published {row['source_type']}, min",
-                   "max": f"published {row['source_type']}, max",
-                   "peak": f"published {row['source_type']}, peak"}[row["statistic"]]
+            lab = {"avg": f"published {row['source_type']}, average",
+                   "min": f"published {row['source_type']}, minimum",
+                   "max": f"published {row['source_type']}, maximum",
+                   "peak": f"published {row['source_type']}, peak"}[row["statistic"]] + " (seed 000)"
         ax.plot(row["speed_mm_s"], row["friction_mN"] * scale, label=lab, zorder=5, **st)
 
 
@@ -154,10 +154,10 @@ def plot_friction_vs_speed(reference: pd.DataFrame, hoop: pd.DataFrame, coulomb:
     if len(lines) == 2:
         (r1, s1), (r2, s2) = lines.items()
         a4.fill_between(s1["speed_mm_s"], s1["total_friction_N"], s2["total_friction_N"].to_numpy(),
-                        color="0.85", lw=0, label=f"between R_i {min(r1, r2):g} and {max(r1, r2):g} mm")
+                        color="0.85", lw=0, label=f"between $R_i$ {min(r1, r2):g} and {max(r1, r2):g} mm")
     for r, sub in lines.items():
         a4.plot(sub["speed_mm_s"], sub["total_friction_N"], color=HOOP_COLORS.get(r, None), lw=1.4,
-                label=f"hoop model eq 16, R_i {r:g} mm")
+                label=f"hoop model eq 16, $R_i$ {r:g} mm")
     a4.plot(case4_law["speed_mm_s"], case4_law["friction_mN"] * 1e-3, label="paper's fit, eq 18",
             **PAPER_FIT_STYLE)
     a4.plot(coulomb["speed_mm_s"], coulomb["friction_mN"] * 1e-3,
