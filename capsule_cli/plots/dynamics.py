@@ -69,10 +69,10 @@ def duty_map_figure(df: pd.DataFrame, title: str, path: str | Path,
     mesh = ax.pcolormesh(_edges(f), _edges(d), v, cmap="RdBu_r", vmin=-lim, vmax=lim, shading="flat")
     fig.colorbar(mesh, ax=ax, label=label("average velocity", "mm/s"))
     i, j = np.unravel_index(np.nanargmax(v), v.shape)
-    ax.plot(f[j], d[i], "k*", ms=7, label=f"fastest here: {f[j]:g} Hz, D = {d[i]:.2f}")
+    ax.plot(f[j], d[i], "k*", ms=7, label=f"fastest here (simulated): {f[j]:g} Hz, D = {d[i]:.2f}")
     if paper_best is not None:
         ax.plot(*paper_best, "o", mfc="none", mec="k", ms=8,
-                label=f"fastest in the paper: {paper_best[0]:g} Hz, D = {paper_best[1]:g}")
+                label=f"fastest in the paper (3D FE, seed 004): {paper_best[0]:g} Hz, D = {paper_best[1]:g}")
     ax.set_xlabel(label("drive frequency f", "Hz"))
     ax.set_ylabel(label("duty cycle D", ""))
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), fontsize=6, ncol=1, frameon=False)
