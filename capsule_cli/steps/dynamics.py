@@ -445,6 +445,13 @@ def duty_map_summary(dm: pd.DataFrame) -> str:
     at_paper = dm[np.isclose(dm["f_Hz"], PAPER_DUTY_BEST[0]) & np.isclose(dm["duty"], PAPER_DUTY_BEST[1])]
     v_paper = f"{at_paper['velocity_mm_s'].iloc[0]:.3g} mm/s" if len(at_paper) else "not on the grid"
     rows = [
+        "# Square-wave progression speed over frequency and duty cycle beside seed 004 section 6", "",
+        "What this is: the average capsule velocity of the double-sided two-mass model (seed 002 Table 2) under a "
+        "square-wave drive, over drive frequency f and duty cycle D, simulated by the duty sweeps of `make study` "
+        "(rule `dynamics_report`; tables `duty/f*/points.parquet`, gathered in `duty_map.parquet` beside this "
+        "file). The paper's values come from the text of seed 004 section 6 (a 3D FE model).", "",
+        f"Grid: f = {', '.join(f'{x:g}' for x in sorted(dm['f_Hz'].unique()))} Hz; D from "
+        f"{dm['duty'].min():.3g} to {dm['duty'].max():.3g} ({dm['duty'].nunique()} values).", "",
         "| quantity | this model | seed 004 (FE) |",
         "| --- | --- | --- |",
         f"| fastest (f, duty) | {best['f_Hz']:g} Hz, {best['duty']:.3g} ({best['velocity_mm_s']:.3g} mm/s) | "
