@@ -457,7 +457,8 @@ def duty_map_summary(dm: pd.DataFrame) -> str:
         f"| fastest (f, duty) | {best['f_Hz']:g} Hz, {best['duty']:.3g} ({best['velocity_mm_s']:.3g} mm/s) | "
         f"{PAPER_DUTY_BEST[0]:g} Hz, {PAPER_DUTY_BEST[1]:g} |",
         f"| speed at the paper's fastest point | {v_paper} | the fastest of its grid |",
-        f"| speeds at {f_lo:g} Hz | {lo.min():.3g} to {lo.max():.3g} mm/s | about 0 (vibrates in place) |",
+        f"| speeds at {f_lo:g} Hz | {lo.min():.3g} to {lo.max():.3g} mm/s | "
+        + ("about 0 (vibrates in place)" if np.isclose(f_lo, 10.0) else "not reported (at 10 Hz: about 0)") + " |",
     ]
     note = ("\nSource: " + PAPER_DUTY_SOURCE + ". The paper's numbers come from a 3D FE model of a coated, "
             "soft capsule in a compliant intestine; this map is the rigid-substrate two-mass model with the "
