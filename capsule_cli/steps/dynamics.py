@@ -530,6 +530,6 @@ def report(out: Path, sweeps: list[str], duty_sweeps: list[str], magnify: Path |
     if magnify is not None:
         df = read_table(magnify)
         prot = df.attrs["provenance"].get("protocol", "?")
-        written.append(P.magnify_figure(df, f"Magnification factor $A_f$ (seed 000 Fig 19), protocol: {prot}",
+        written.append(P.magnify_figure(df, f"Magnification factor $A_f$ = max|$F_i$|/$P_d$ (seed 000 eq 24, Fig 19), one-sided prototype, simulated; protocol: {prot}",
                                         out / "magnify.png"))
     return written
