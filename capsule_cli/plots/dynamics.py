@@ -47,7 +47,9 @@ def bifurcation_figure(cases: list[tuple[str, pd.DataFrame, pd.DataFrame]], prot
     ax2.set_ylabel(label("average capsule velocity", "mm/s"))
     ax2.set_xlabel(label("drive frequency f", "Hz"))
     ax2.axhline(0, color="k", lw=0.5)
-    ax1.legend(loc="upper left", markerscale=1.5, title="shell friction", title_fontsize=6)
+    h, lab_ = ax1.get_legend_handles_labels()
+    fig.legend(h, lab_, loc="outside lower center", ncol=min(3, len(h)), markerscale=1.5,
+               title="shell friction (one colour per case)", title_fontsize=6)
     ax1.set_title("(a) relative velocity at the Poincaré section", loc="left", fontsize=7)
     ax2.set_title("(b) progression", loc="left", fontsize=7)
     fig.suptitle(f"{title}\nprotocol: {protocol} ({PROTOCOL_TEXT.get(protocol, protocol)})", fontsize=8)
