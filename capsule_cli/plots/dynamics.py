@@ -123,3 +123,83 @@ def _edges(x: np.ndarray, lo: float | None = 0.0, hi: float | None = None) -> np
     if hi is not None:
         e[-1] = min(e[-1], max(hi, x[-1]))
     return e
+
+
+#: how each kind of engine event is marked in :func:`simulation_figure`
+EVENT_STYLE = {
+    "front_contact_on": dict(marker="v", color=OKABE_ITO[1], label="front impact (contact on)"),
+    "front_contact_off": dict(marker="^", color=OKABE_ITO[1], mfc="none", label="front contact off"),
+    "back_contact_on": dict(marker="v", color=OKABE_ITO[3], label="back impact (contact on)"),
+    "back_contact_off": dict(marker="^", color=OKABE_ITO[3], mfc="none", label="back contact off"),
+    "stick": dict(marker="s", color="0.2", ms=2.5, label="shell sticks"),
+    "slip_forward": dict(marker=">", color=OKABE_ITO[2], label="slip forward"),
+    "slip_backward": dict(marker="<", color=OKABE_ITO[2], mfc="none", label="slip backward"),
+}
+
+
+def simulation_figure(traj: pd.DataFrame, events: pd.DataFrame, path: str | Path, title: str = "",
+                      gap_mm: float | None = None, gap_back_mm: float | None = None,
+                      last_periods: float | None = None, period_s: float | None = None) -> Path:
+    """One run: positions, velocities and contact force against time with the events marked (left), and
+    the phase portrait of the relative motion x_r, v_r (right).
+
+    traj: a ``dynamics_trajectory`` table; events: a ``dynamics_events`` table (exact times);
+    gap_mm / gap_back_mm: the front gap G_1 and the back gap G_2 [mm] (drawn on the phase portrait);
+    last_periods, period_s: draw only the last ``last_periods`` drive periods of length ``period_s`` [s].
+    """
+    tr = traj.sort_values("time_s")
+    if last_periods and period_s and len(tr):
+        tr = tr[tr["time_s"] >= tr["time_s"].iloc[-1] - last_periods * period_s]
+    t0, t1 = (float(tr["time_s"].min()), float(tr["time_s"].max())) if len(tr) else (0.0, 0.0)
+    ev = events[(events["time_s"] >= t0) & (events["time_s"] <= t1)] if len(events) else events
+    fig = blank_figure(width="page", height_in=4.6)
+    gs = fig.add_gridspec(3, 2, width_ratios=[1.7, 1])
+    ax_x = fig.add_subplot(gs[0, 0])
+    ax_v = fig.add_subplot(gs[1, 0], sharex=ax_x)
+    ax_f = fig.add_subplot(gs[2, 0], sharex=ax_x)
+    ax_p = fig.add_subplot(gs[:, 1])
+    t_ms = tr["time_s"] * 1e3
+    ax_x.plot(t_ms, tr["magnet_mm"], color=OKABE_ITO[0], label="magnet $X_m$")
+    ax_x.plot(t_ms, tr["capsule_mm"], color=OKABE_ITO[1], label="capsule $X_c$")
+    ax_v.plot(t_ms, tr["magnet_velocity_mm_s"], color=OKABE_ITO[0], label="magnet $V_m$")
+    ax_v.plot(t_ms, tr["capsule_velocity_mm_s"], color=OKABE_ITO[1], label="capsule $V_c$")
+    ax_f.plot(t_ms, tr["Fi_N"] * 1e3, color="0.25", lw=0.9, label="interaction force $F_i$")
+    if "stick" in tr and tr["stick"].any():
+        st = tr["stick"].to_numpy(bool)
+        ax_v.fill_between(t_ms, 0, 1, where=st, transform=ax_v.get_xaxis_transform(), color="0.85", lw=0,
+                          label="shell stuck", step="mid")
+    # exact event times as a rug along the top of the force panel, one row per kind
+    rows = {k: 0.97 - 0.07 * i for i, k in enumerate(EVENT_STYLE)}
+    xf = blended_transform_factory(ax_f.transData, ax_f.transAxes)
+    for kind, style in EVENT_STYLE.items():
+        sel = (ev["kind"].astype(str) == kind).to_numpy() if len(ev) else np.zeros(0, bool)
+        if sel.any():
+            st = dict(style)
+            tt = ev["time_s"].to_numpy()[sel] * 1e3
+            ax_f.plot(tt, np.full(len(tt), rows[kind]), ls="none", ms=st.pop("ms", 3.5), transform=xf, zorder=4,
+                      clip_on=False, **st)
+    ax_x.set_ylabel(label("position", "mm"))
+    ax_v.set_ylabel(label("velocity", "mm/s"))
+    ax_f.set_ylabel(label("$F_i$ on the shell", "mN"))
+    ax_f.set_xlabel(label("time", "ms"))
+    for ax in (ax_x, ax_v):
+        ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), fontsize=6, ncol=3, borderaxespad=0.1)
+        ax.tick_params(labelbottom=False)
+    ax_f.set_ylim(top=ax_f.get_ylim()[1] * 1.6)  # room for the event rows
+    ax_f.legend(loc="upper center", bbox_to_anchor=(0.5, -0.35), fontsize=5.5, ncol=3,
+                title="events at their exact (root-found) times", title_fontsize=5.5)
+    ax_p.plot(tr["relative_mm"], tr["magnet_velocity_mm_s"] - tr["capsule_velocity_mm_s"], color=OKABE_ITO[0],
+              lw=0.8)
+    if gap_mm is not None:
+        ax_p.axvline(gap_mm, color=OKABE_ITO[1], ls="--", lw=0.8, label=f"front constraint $G_1$ = {gap_mm:g} mm")
+    if gap_back_mm is not None:
+        ax_p.axvline(-gap_back_mm, color=OKABE_ITO[3], ls="--", lw=0.8,
+                     label=f"back constraint $-G_2$ = {-gap_back_mm:g} mm")
+    ax_p.set_xlabel(label("relative displacement $x_r = X_m - X_c$", "mm"))
+    ax_p.set_ylabel(label("relative velocity $v_r$", "mm/s"))
+    ax_p.set_title("phase portrait of the relative motion", fontsize=7)
+    if gap_mm is not None or gap_back_mm is not None:
+        ax_p.legend(loc="lower left", fontsize=5.5)
+    if title:
+        fig.suptitle(title, fontsize=8)
+    return save_figure(fig, path)
