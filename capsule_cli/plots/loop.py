@@ -110,7 +110,7 @@ def plot_fit(res: pd.DataFrame, curves: pd.DataFrame, main: str, resp: str, path
     varying = [k for k in keys if len({c.get(k) for c in combos.values()}) > 1]
     fixed = [k for k in keys if k not in varying]
     many = len(combos) > 3
-    fig, ax = figure(width="page" if many else "column", height_in=3.2 if many else 3.0)
+    fig, ax = figure(width="page" if many else "column", height_in=3.2 if many else 3.6)
     colour = {cid: OKABE_ITO[i % len(OKABE_ITO)] for i, cid in enumerate(sorted(curves["curve_id"].unique()))}
     drawn = np.zeros(len(res), bool)
     for cid, combo in combos.items():
@@ -173,8 +173,12 @@ def plot_fit(res: pd.DataFrame, curves: pd.DataFrame, main: str, resp: str, path
     legend_title = "lines: model, 95 % band"
     if fixed:
         legend_title += "\n" + ", ".join(_value_text(k, list(combos.values())[0][k]) for k in fixed)
-    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=6, title=legend_title, title_fontsize=6,
-              borderaxespad=0.0)
+    if many:  # page width: the legend beside the axes
+        ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=6, title=legend_title, title_fontsize=6,
+                  borderaxespad=0.0)
+    else:  # column width: below, so the axes keep the width
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.22), fontsize=6, title=legend_title,
+                  title_fontsize=6, ncol=2)
     return save_figure(fig, path)
 
 
