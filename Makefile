@@ -1,6 +1,7 @@
 # Two entry points for a fresh machine (Python 3.11, git, make):
 #   make study   set up .venv and run the full paper study (results/)
 #   make test    set up .venv and run the tests, including the Snakemake smoke run
+#   make report  (after make study) results/report.html: every figure captioned, run time per rule
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -9,7 +10,7 @@ CORES ?= 2
 # the rules call capsule-cli: the venv's bin comes first on PATH
 export PATH := $(CURDIR)/$(BIN):$(PATH)
 
-.PHONY: study test setup smoke clean-results
+.PHONY: study test setup smoke report clean-results
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -22,6 +23,10 @@ setup: $(STAMP)
 
 study: $(STAMP)
 	$(BIN)/snakemake -s workflow/Snakefile --configfile configs/study.yaml --cores $(CORES) -p
+
+report: $(STAMP)
+	$(BIN)/snakemake -s workflow/Snakefile --configfile configs/study.yaml --report results/report.html
+	@echo "report: results/report.html"
 
 smoke: $(STAMP)
 	$(BIN)/snakemake -s workflow/Snakefile --configfile configs/smoke.yaml --cores $(CORES) -p

@@ -87,6 +87,18 @@ def _jsonable(x):
 # provenance
 
 
+def user_path(path: str | os.PathLike) -> str:
+    """Return ``path`` as the user would write it from where the command runs: relative to the current
+    folder (never an absolute path of this machine in an output), unchanged if already relative."""
+    p = Path(path)
+    if not p.is_absolute():
+        return str(p)
+    try:
+        return os.path.relpath(p)
+    except ValueError:  # another drive (Windows)
+        return str(p)
+
+
 def git_commit() -> str | None:
     """Return the git commit of the source tree (with '-dirty'), or None outside git."""
     root = Path(__file__).resolve().parents[1]

@@ -60,3 +60,64 @@ def test_numeric_options_state_their_unit(name):
         words = set(re.findall(r"[\w/·%°²³µ-]+", p.help or ""))
         has_unit = bool(words & UNIT_WORDS) or bool(words & {"dimensionless", "fraction", "ratio"})
         assert has_suffix or has_unit, f"'{name}': float option '{p.name}' states no unit: {p.help!r}"
+
+
+# ---------------------------------------------------------------------------
+# the rendered text (issue 14): what a user reads in `--help` must keep every unit, show flags as
+# flags, and cut nothing off. Compared with whitespace removed, since the text wraps at the terminal.
+
+from typer.testing import CliRunner  # noqa: E402
+
+def _groups(cmd, path=()):
+    if getattr(cmd, "commands", None):
+        yield " ".join(path), cmd
+        for name, sub in cmd.commands.items():
+            yield from _groups(sub, path + (name,))
+
+
+GROUPS = dict(_groups(typer.main.get_command(app)))
+
+
+def _squash(text: str) -> str:
+    return "".join(text.split())
+
+
+def _render(name: str, width: int = 80) -> str:
+    res = CliRunner().invoke(app, [*name.split(), "--help"], terminal_width=width, env={"COLUMNS": str(width)})
+    assert res.exit_code == 0, res.output
+    return res.output
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_rendered_help_keeps_units_and_flags_and_cuts_nothing(name):
+    text = _render(name)
+    flat = _squash(text)
+    assert "<bool>" not in text and "<list[" not in text, f"'{name}': a type shown instead of a value:\n{text}"
+    for p in COMMANDS[name].params:
+        if p.name == "help":
+            continue
+        # the whole help text is there, square-bracketed units included (rich markup used to eat "[mm]")
+        assert _squash(p.help) in flat, f"'{name}' --{p.name}: help text missing or cut in\n{text}"
+        for unit in re.findall(r"\[[^\]]+\]", p.help):
+            assert unit in text.replace("\n", " ") or _squash(unit) in flat, (name, p.name, unit)
+        if getattr(p, "is_flag", False) and not getattr(p, "count", False):
+            longest = max(p.opts, key=len)
+            # a flag is followed by its help or another option name, never by a value placeholder
+            assert re.search(re.escape(longest) + r"(?:\s{2,}|\n|, |/)", text), f"'{name}': flag {longest}:\n{text}"
+            assert not re.search(re.escape(longest) + r" <", text), f"'{name}': flag {longest} shows a value"
+
+
+@pytest.mark.parametrize("group", sorted(GROUPS))
+def test_rendered_command_lists_are_not_cut_off(group):
+    text = _render(group)
+    assert "..." not in text.split("Commands:")[-1].replace("<path> ...", ""), text
+    for sub_name, sub in GROUPS[group].commands.items():
+        summary = (sub.short_help or sub.help or "").split("\n\n")[0]
+        assert _squash(summary) in _squash(text), f"'{group}': summary of '{sub_name}' cut off:\n{text}"
+
+
+def test_units_in_brackets_survive_rendering():
+    """The case of the issue: '[mm/s]' rendered as nothing ('speed  below which')."""
+    text = _render("simulate", width=100)
+    assert "speed [mm/s] below which" in " ".join(text.split())
+    assert "--literal " in text and "--literal <" not in text

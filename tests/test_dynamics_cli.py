@@ -101,3 +101,19 @@ def test_contract_dynamics_model_file_runs_as_written(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("kind: progression\nbase: three_sided\neffects: []\nparams: {}\n")
     assert main(["simulate", "--model", str(bad), "--out", str(tmp_path / "c"), "--quiet"]) == 2
+
+
+def test_simulate_figure(tmp_path, capsys):
+    """--figure draws the run (time series with events, phase portrait); bad figure paths exit 2."""
+    out, fig = tmp_path / "run", tmp_path / "run.png"
+    assert main(["simulate", "--f-Hz", "35", "--periods", "4", "--transient-periods", "20", "--out", str(out),
+                 "--figure", str(fig), "--figure-periods", "2", "--quiet"]) == 0
+    assert fig.is_file() and fig.stat().st_size > 20000
+    from matplotlib.image import imread
+    img = imread(fig)
+    assert img.shape[1] > img.shape[0] > 500  # a page-wide figure
+    assert main(["simulate", "--periods", "2", "--out", str(tmp_path / "r2"), "--figure",
+                 str(tmp_path / "run.txt"), "--quiet"]) == 2
+    assert main(["simulate", "--periods", "2", "--out", str(tmp_path / "r3"), "--figure", str(fig),
+                 "--sample-rate-Hz", "0", "--quiet"]) == 2
+    assert not (tmp_path / "r2").exists() and not (tmp_path / "r3").exists()

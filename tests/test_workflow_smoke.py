@@ -18,7 +18,8 @@ REPO = Path(__file__).resolve().parents[1]
 @pytest.mark.xdist_group("smoke")
 def test_smoke_workflow_builds_every_target(tmp_path):
     snakemake = Path(sys.executable).with_name("snakemake")
-    results = tmp_path / "results"
+    # CI (.github/workflows/ci.yml) names a folder to keep the smoke figures as an artifact
+    results = Path(os.environ.get("CAPSULE_SMOKE_RESULTS") or tmp_path / "results").resolve()
     # PATH as the user has it: the Snakefile itself must find the project's capsule-cli
     env = dict(os.environ)
     cmd = [str(snakemake), "-s", str(REPO / "workflow" / "Snakefile"), "--configfile",

@@ -22,6 +22,7 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    rich_markup_mode=None,  # plain help: "[mm/s]" is a unit, not rich markup; flags print as flags
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
@@ -46,6 +47,59 @@ def _register_all() -> None:
 
     for mod in (contact, friction, dynamics, loop):
         mod.register(app)
+    _plain_help(app)
+
+
+def _given(value):
+    """``value`` unless it is typer's placeholder for 'not given' (then None)."""
+    from typer.models import DefaultPlaceholder
+
+    return None if isinstance(value, DefaultPlaceholder) else value
+
+
+def _list_metavars(callback) -> None:
+    """Show a repeatable option's value as ``<path> ...`` rather than ``<list[Path]>``."""
+    import inspect
+    import typing
+
+    from typer.models import OptionInfo
+
+    if callback is None:
+        return
+    hints = typing.get_type_hints(callback)
+    for name, par in inspect.signature(callback).parameters.items():
+        opt = par.default
+        if not isinstance(opt, OptionInfo) or opt.metavar is not None:
+            continue
+        ann = hints.get(name)
+        if typing.get_origin(ann) is typing.Union:  # Optional[List[X]]
+            ann = next(a for a in typing.get_args(ann) if a is not type(None))
+        if typing.get_origin(ann) in (list, tuple) and typing.get_args(ann):
+            inner = typing.get_args(ann)[0]
+            opt.metavar = f"<{getattr(inner, '__name__', str(inner)).lower()}> ..."
+
+
+def _plain_help(typer_app: typer.Typer) -> None:
+    """Render every help page as plain text, and list commands by their whole first paragraph.
+
+    Rich markup would eat lower-case units in square brackets (``[mm]``, ``[mm/s]``, ``[kPa]``)
+    and print flags with a ``<bool>`` value; click's default list of commands cuts each summary
+    at the terminal width with '...'. Both are fixed here for every group and command.
+    """
+    typer_app.rich_markup_mode = None
+    for info in typer_app.registered_commands:
+        text = info.help or (info.callback.__doc__ if info.callback else None) or ""
+        if info.short_help is None and text.strip():
+            info.short_help = " ".join(text.strip().split("\n\n")[0].split())
+        _list_metavars(info.callback)
+    for group in typer_app.registered_groups:
+        sub = group.typer_instance
+        if sub is None:
+            continue
+        text = _given(group.help) or _given(sub.info.help) or ""
+        if text.strip() and _given(group.short_help) is None and _given(sub.info.short_help) is None:
+            sub.info.short_help = " ".join(text.strip().split("\n\n")[0].split())
+        _plain_help(sub)
 
 
 _register_all()

@@ -87,6 +87,11 @@ def register(app: typer.Typer) -> None:
         transient_periods: int = typer.Option(0, "--transient-periods", help="periods run first, not recorded [-]"),
         sample_rate_Hz: float = typer.Option(5000.0, "--sample-rate-Hz", help="trajectory sampling rate [Hz] "
                                              "(0: no trajectory)"),
+        figure: Optional[Path] = typer.Option(None, "--figure", help="also draw the run to this PNG/PDF: "
+                                              "positions, velocities and contact force against time with the "
+                                              "events marked, and the phase portrait x_r, v_r"),
+        figure_periods: float = typer.Option(5.0, "--figure-periods", help="drive periods drawn by --figure, "
+                                             "the last ones of the run [-]"),
         quiet: bool = QUIET,
     ):
         """One vibro-impact run (seed 000 eqs 19-23): trajectory, exact events, per-period table, energy balance."""
@@ -95,8 +100,24 @@ def register(app: typer.Typer) -> None:
 
         m, d, fr = _setup(model, set_, waveform, f_Hz, Pd_N, duty, friction, Pf_N, literal, v_min_mm_s,
                           law_speed_unit, static_N)
+        if figure is not None:
+            from .common import ensure_suffix
+            ensure_suffix(figure, (".png", ".pdf"), "--figure")
+            if sample_rate_Hz <= 0:
+                raise InputError("--figure needs a trajectory: --sample-rate-Hz > 0")
         compile_notice(quiet, ("run_core",))
         s = simulate_to_dir(out, m, d, fr, periods, transient_periods, sample_rate_Hz, model_name=model)
+        if figure is not None:
+            from ..plots.dynamics import simulation_figure
+            from ..steps.dynamics import case_name
+            from ..tables import read_table
+
+            from dataclasses import asdict
+            simulation_figure(read_table(out / "trajectory.parquet"), read_table(out / "events.parquet"), figure,
+                              title=f"{model}: {d.waveform} drive $P_d$ = {Pd_N * 1e3:g} mN at {f_Hz:g} Hz, "
+                                    f"{case_name(asdict(fr))} (simulated; last {figure_periods:g} periods)",
+                              gap_mm=m.gap_m * 1e3, gap_back_mm=m.gap_back_m * 1e3 if m.double_sided else None,
+                              last_periods=figure_periods, period_s=1.0 / f_Hz)
         if not quiet:
             typer.echo(f"{out}: v = {s['average_velocity_mm_s']:.6g} mm/s, {s['impacts_per_period']} impacts/period, "
                        f"A_f = {s['Af']:.4g}, energy residual {s['energy_balance']['relative_residual']:.1e}",

@@ -220,3 +220,6 @@ def register(app: typer.Typer) -> None:
         ensure_suffix(out, (".png", ".pdf"), "--out")
         hist = select_history(read_ledger(ledger or [Path("results/ledger.parquet")]), model)
         plot_ledger(hist, out, title=title or f"error history on {Path(str(hist['data'].iloc[-1])).name}")
+        cv = hist["cv_rmse"].to_numpy(float)
+        typer.echo(f"{out}: {len(hist)} revision(s), held-out RMSE {cv[0]:.3g} -> {cv[-1]:.3g} "
+                   f"{hist['unit'].iloc[-1]}", err=True)

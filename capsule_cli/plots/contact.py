@@ -23,34 +23,55 @@ _CASE_TITLES = {"case1": "Case 1: flat intestine (Hertz)", "case2": "Case 2: col
 _KIND_NAMES = {"experiment": "experiment", "FE": "FE", "analytic": "analytic", "fit": "fit"}
 
 
-def _overlay_reference(ax, ref: pd.DataFrame, xcol: str, xmax: float, annotate: bool = True, seen=None,
-                       xlabel_level: float = 0.0):
-    """Draw published values: markers where ``xcol`` is given, dotted levels where it is not.
+#: marker of published averages by seed paper (maxima are triangles '^')
+_SEED_MARKER = {"003": "o", "001": "D", "000": "s", "004": "P"}
+_TYPE_COLOUR = {"experiment": "#000000", "FE": "#D55E00", "analytic": "#009E73", "fit": "#CC79A7"}
 
-    Levels (values not tied to an x) are dotted lines with their marker at the
-    right edge and their label at ``xlabel_level``; labels are collected on the
-    axis for :func:`_repel` to separate.
+
+def _published_key(row) -> tuple[str, str, bool]:
+    """(source type, seed number, with gravity) of a reference row, from its columns and citation."""
+    import re
+
+    seed = re.search(r"seed (\d{3})", str(row.get("source", "")))
+    text = f"{row.get('label', '')} {row.get('note', '')}"
+    gravity = "(+g)" in text or "with gravity" in text
+    return str(row["source_type"]), seed.group(1) if seed else "", gravity
+
+
+def _published_name(key: tuple[str, str, bool], statistic: str = "avg") -> str:
+    kind, seed, gravity = key
+    stat = {"avg": " average", "max": " maximum"}.get(statistic, f" {statistic}")
+    return f"{kind}{stat}{', with gravity' if gravity else ''}" + (f" (seed {seed})" if seed else "")
+
+
+def _overlay_reference(ax, ref: pd.DataFrame, xcol: str, xmax: float = 0.0, annotate: bool = False, seen=None,
+                       xlabel_level: float = 0.0):
+    """Draw published values, named in the legend by origin (experiment, FE, analytic), seed and gravity.
+
+    Values at a given ``xcol`` are markers: shape by seed, colour by origin, open when measured or
+    computed with gravity. Values the paper gives without an ``xcol`` are dotted levels across the axis,
+    with their marker in the margin right of the axis (never at a made-up x). No text sits on the curves.
     """
     seen = set() if seen is None else seen
+    right = blended_transform_factory(ax.transAxes, ax.transData)
+    n_level = 0
     for _, r in ref.iterrows():
-        st = REFERENCE_STYLE.get(r["source_type"], REFERENCE_STYLE["fit"])
-        lab = _KIND_NAMES.get(r["source_type"], r["source_type"]) if r["source_type"] not in seen else None
-        seen.add(r["source_type"])
-        text = r.get("label") if annotate else None
+        key = _published_key(r)
+        kind, seed, gravity = key
+        col = _TYPE_COLOUR.get(kind, "#CC79A7")
+        mk = "^" if str(r.get("statistic", "avg")) == "max" else _SEED_MARKER.get(seed, "^")
+        name = _published_name(key, str(r.get("statistic", "avg")))
+        lab = None if name in seen else name
+        seen.add(name)
+        style = dict(marker=mk, color=col, mfc="none" if gravity or kind == "experiment" else col, ms=5, ls="none",
+                     mew=1.0)
         if np.isfinite(r[xcol]):
-            ax.plot([r[xcol]], [r["pressure_kPa"]], **st, label=lab, zorder=4)
-            if text:
-                right = r[xcol] > 0.7 * xmax
-                ax.annotate(text, (r[xcol], r["pressure_kPa"]), xytext=(-5 if right else 5, -2),
-                            textcoords="offset points", fontsize=5.5, color=st["color"], va="center",
-                            ha="right" if right else "left")
+            ax.plot([r[xcol]], [r["pressure_kPa"]], label=lab, zorder=4, **style)
         else:
-            ax.axhline(r["pressure_kPa"], color=st["color"], lw=0.7, ls=":", zorder=1)
-            ax.plot([-0.03], [r["pressure_kPa"]], **{**st, "ms": st.get("ms", 5) - 1}, label=lab,
-                    clip_on=False, zorder=4, transform=blended_transform_factory(ax.transAxes, ax.transData))
-            if text:
-                ax.annotate(text, (xlabel_level, r["pressure_kPa"]), xytext=(5, 3), textcoords="offset points",
-                            fontsize=5.5, color=st["color"], va="center")
+            ax.axhline(r["pressure_kPa"], color=col, lw=0.7, ls=":", zorder=1)
+            ax.plot([1.03 + 0.05 * (n_level % 2)], [r["pressure_kPa"]], clip_on=False, zorder=4, label=lab,
+                    transform=right, **style)
+            n_level += 1
     return seen
 
 
@@ -94,7 +115,7 @@ def plot_pressure_vs_speed(table: pd.DataFrame, reference: pd.DataFrame | None, 
     reference table (rows of case1-case3 are drawn; speed-independent values as
     dotted levels marked at the right edge). The hoop panel shows R_i = ``hoop_Ri_mm``.
     """
-    fig, axes = figure(ncols=3, width="page", height_in=2.9)
+    fig, axes = figure(ncols=3, width="page", height_in=3.6)
     vmax = float(table["speed_mm_s"].max())
     for ax, (case, model) in zip(axes, (("case1", "hertz"), ("case2", "collapsed"), ("case3", "hoop"))):
         t = table[table["model"] == model]
@@ -118,21 +139,21 @@ def plot_pressure_vs_speed(table: pd.DataFrame, reference: pd.DataFrame | None, 
                             label=f"hoop eq 14, {'$t_{i,e}$' if mode == 'attenuated' else '$t_i$'}")
         seen = set()
         if reference is not None:
-            ref = reference[(reference["case"] == case) & (reference["statistic"] == "avg")]
+            ref = reference[(reference["case"] == case) & reference["statistic"].isin(["avg", "max"])]
             if model == "hoop":
-                ref = ref[np.isclose(ref["Ri_mm"], hoop_Ri_mm)]
-            _overlay_reference(ax, ref, "speed_mm_s", vmax, seen=seen, xlabel_level=0.0)
+                ref = ref[np.isclose(ref["Ri_mm"], hoop_Ri_mm) & (ref["statistic"] == "avg")]
+            _overlay_reference(ax, ref, "speed_mm_s", vmax, seen=seen)
         ri = t["Ri_mm"].iloc[0] if len(t) else np.nan
         rtxt = "$R_i$ = ∞ (flat)" if not np.isfinite(ri) else f"$R_i$ = {hoop_Ri_mm if model == 'hoop' else ri:g} mm"
         ax.set_title(f"{_CASE_TITLES[case]}\n{rtxt}")
         ax.set_xlabel(label("speed $V$", "mm/s"))
-        ax.set_xlim(0, vmax * 1.02)
+        ax.set_xlim(0, vmax * 1.02)  # speeds are >= 0: no point is drawn left of the axis
         lo, hi = ax.get_ylim()
         ax.set_ylim(0, hi * 1.1)
-        ax.legend(loc={"hertz": "lower left", "collapsed": "upper left", "hoop": "lower right"}[model],
-                  fontsize=5.5)
-        _repel(ax)
-    axes[0].set_ylabel(label("average contact pressure", "kPa"))
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), fontsize=5.5, ncol=1,
+                  title="lines: this model; markers: published\n(dotted: value given without a speed)",
+                  title_fontsize=5.5)
+    axes[0].set_ylabel(label("contact pressure", "kPa"))
     return save_figure(fig, path)
 
 
@@ -208,7 +229,7 @@ def plot_pressure_vs_radius(table: pd.DataFrame, reference: pd.DataFrame | None,
     ``table``: a ``contact_pressure`` table of the hoop model over R_i; published
     hoop-only FE values at R_i = 5 mm are overlaid.
     """
-    fig, ax = figure(height_in=2.8)
+    fig, ax = figure(height_in=3.9)
     t = table[(table["model"] == "hoop") & (table["statistic"] == "avg")]
     speeds = sorted(t["speed_mm_s"].unique())
     for i, v in enumerate(speeds):
@@ -220,18 +241,19 @@ def plot_pressure_vs_radius(table: pd.DataFrame, reference: pd.DataFrame | None,
     if reference is not None:
         ref = reference[(reference["case"] == "case3") & reference["label"].str.contains("hoop")
                         & np.isfinite(reference["speed_mm_s"])]
-        for _, r in ref.iterrows():
-            st = REFERENCE_STYLE.get(r["source_type"], REFERENCE_STYLE["fit"])
-            ax.plot([r["Ri_mm"]], [r["pressure_kPa"]], **st)
-            ax.annotate(f"{r['label']} {r['speed_mm_s']:g} mm/s: {r['pressure_kPa']:g} kPa",
-                        (r["Ri_mm"], r["pressure_kPa"]), xytext=(8, 8), textcoords="offset points", fontsize=5.5,
-                        ha="left", va="center", color=st["color"],
-                        arrowprops=dict(arrowstyle="-", color=st["color"], lw=0.4))
+        for i, (_, r) in enumerate(ref.sort_values("pressure_kPa").iterrows()):
+            key = _published_key(r)
+            col = _TYPE_COLOUR.get(key[0], "#CC79A7")
+            # the published points share R_i = 5 mm: spread them a little in x so none hides another
+            ax.plot([r["Ri_mm"] + 0.03 * (i - (len(ref) - 1) / 2)], [r["pressure_kPa"]], ls="none",
+                    marker=_SEED_MARKER.get(key[1], "^"), color=col, mfc=col, ms=4.5, zorder=5,
+                    label=f"{_published_name(key)}, hoop only, {r['speed_mm_s']:g} mm/s")
     ax.set_xlabel(label("intestine inner radius $R_i$", "mm"))
     ax.set_ylabel(label("hoop pressure on the body (eq 14)", "kPa"))
     ax.set_ylim(bottom=0)
-    ax.legend(fontsize=5.5, ncol=2, title="speed (solid $t_{i,e}$, dashed $t_i$)", title_fontsize=5.5)
-    _repel(ax, min_gap_pt=8.0, width_pt=120.0)
+    ax.legend(fontsize=5.5, ncol=2, loc="upper center", bbox_to_anchor=(0.5, -0.2),
+              title="lines: this model at speed (solid $t_{i,e}$, dashed $t_i$); markers: published FE",
+              title_fontsize=5.5)
     return save_figure(fig, path)
 
 
@@ -242,7 +264,7 @@ def plot_end_shape(table: pd.DataFrame, reference: pd.DataFrame | None, path: st
     ``table``: a ``contact_pressure`` table of the hoop model over end lengths at
     one speed; the FE maxima of seed 001 section 6 are overlaid.
     """
-    fig, ax = figure(height_in=2.8)
+    fig, ax = figure(height_in=3.6)
     t = table[(table["model"] == "hoop") & (table["wall_mode"] == wall_mode)]
     names = {"avg": "body average (eq 14)", "contact_avg": "area average, ends included", "max": "maximum"}
     styles = {"avg": dict(marker="o", ls="-"), "contact_avg": dict(marker="s", ls="-."),
@@ -260,8 +282,16 @@ def plot_end_shape(table: pd.DataFrame, reference: pd.DataFrame | None, path: st
     v = t["speed_mm_s"].iloc[0] if len(t) else np.nan
     ax.set_title(f"End shape, $R_i$ = {t['Ri_mm'].iloc[0]:g} mm, $V$ = {v:g} mm/s", fontsize=7)
     ax.set_ylim(bottom=0)
-    ax.legend(fontsize=5.5, loc="center right")
-    _repel(ax)
+    ax.legend(fontsize=5.5, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2,
+              title="lines: this model; markers: published (dotted: end length not stated)", title_fontsize=5.5)
+    if reference is not None and len(ref):
+        fe_max = ref[(ref["source_type"] == "FE") & (ref["statistic"] == "max")]["pressure_kPa"]
+        mod_max = t[t["statistic"] == "max"]["pressure_kPa"]
+        if len(fe_max) and len(mod_max) and fe_max.min() > 1.3 * mod_max.max():
+            ax.text(0.03, 0.62, f"FE maxima {' and '.join(f'{v:.0f}' for v in sorted(fe_max, reverse=True))} kPa "
+                    f"vs model maximum \u2264 {mod_max.max():.0f} kPa:\nthe axisymmetric hoop model has no stress "
+                    "concentration\nwhere the end meets the body (3D FE edge contact)",
+                    transform=ax.transAxes, fontsize=5.5, color="0.3", va="top")
     return save_figure(fig, path)
 
 

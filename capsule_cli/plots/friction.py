@@ -67,10 +67,10 @@ def _reference_points(ax, ref: pd.DataFrame, scale: float, with_label: set):
         lab = None
         if key not in with_label:
             with_label.add(key)
-            lab = {"avg": f"published {row['source_type']}, avg",
-                   "min": f"published {row['source_type']}, min",
-                   "max": f"published {row['source_type']}, max",
-                   "peak": f"published {row['source_type']}, peak"}[row["statistic"]]
+            lab = {"avg": f"published {row['source_type']}, average",
+                   "min": f"published {row['source_type']}, minimum",
+                   "max": f"published {row['source_type']}, maximum",
+                   "peak": f"published {row['source_type']}, peak"}[row["statistic"]] + " (seed 000)"
         ax.plot(row["speed_mm_s"], row["friction_mN"] * scale, label=lab, zorder=5, **st)
 
 
@@ -154,10 +154,10 @@ def plot_friction_vs_speed(reference: pd.DataFrame, hoop: pd.DataFrame, coulomb:
     if len(lines) == 2:
         (r1, s1), (r2, s2) = lines.items()
         a4.fill_between(s1["speed_mm_s"], s1["total_friction_N"], s2["total_friction_N"].to_numpy(),
-                        color="0.85", lw=0, label=f"between R_i {min(r1, r2):g} and {max(r1, r2):g} mm")
+                        color="0.85", lw=0, label=f"between $R_i$ {min(r1, r2):g} and {max(r1, r2):g} mm")
     for r, sub in lines.items():
         a4.plot(sub["speed_mm_s"], sub["total_friction_N"], color=HOOP_COLORS.get(r, None), lw=1.4,
-                label=f"hoop model eq 16, R_i {r:g} mm")
+                label=f"hoop model eq 16, $R_i$ {r:g} mm")
     a4.plot(case4_law["speed_mm_s"], case4_law["friction_mN"] * 1e-3, label="paper's fit, eq 18",
             **PAPER_FIT_STYLE)
     a4.plot(coulomb["speed_mm_s"], coulomb["friction_mN"] * 1e-3,
@@ -188,7 +188,7 @@ def plot_hoop_vs_radius(hoop: pd.DataFrame, reference: pd.DataFrame, path: str |
     speeds = np.sort(hoop["speed_mm_s"].unique())
     v0 = speeds[np.argmin(np.abs(speeds - speed_mm_s))]
     sub = hoop[hoop["speed_mm_s"] == v0].sort_values("Ri_mm")
-    fig, (a, b) = figure(2, 1, width="page", height_in=3.2)
+    fig, (a, b) = figure(2, 1, width="page", height_in=4.0)
     ref4 = reference[reference["case"].astype(str) == "4"]
     meas = ref4[(ref4["source_type"] == "experiment") & ref4["statistic"].isin(["min", "max"])]
     fe = ref4[(ref4["source_type"] == "FE")] if "Ri_mm" in ref4.columns else ref4.iloc[:0]
@@ -198,24 +198,24 @@ def plot_hoop_vs_radius(hoop: pd.DataFrame, reference: pd.DataFrame, path: str |
         if len(meas) >= 2:
             lo, hi = meas["friction_mN"].min() * 1e-3, meas["friction_mN"].max() * 1e-3
             ax.axhspan(lo, hi, color="#E69F00", alpha=0.12, lw=0, zorder=0,
-                       label=f"measured Case 4, {lo:g}-{hi:g} N")
+                       label=f"experiment: Case 4 range {lo:g}-{hi:g} N (seed 000)")
         if len(fe):
-            ax.plot(fe["Ri_mm"], fe["friction_mN"] * 1e-3, label="seed 000 FE (no gravity)", zorder=5,
+            ax.plot(fe["Ri_mm"], fe["friction_mN"] * 1e-3, label="FE, no gravity (seed 000)", zorder=5,
                     **REFERENCE_STYLE["FE"])
         ax.axhline(0, color="0.3", lw=0.6)
-        ax.set_xlabel(label("intestine inner radius R_i", "mm"))
+        ax.set_xlabel(label("intestine inner radius $R_i$", "mm"))
         ax.set_ylabel(label("friction", "N"))
     for col, (name, colour, ls) in COMPONENT_STYLE.items():
         a.plot(sub["Ri_mm"], sub[col], color=colour, ls=ls, label=name)
     a.plot(sub["Ri_mm"], sub["hoop_friction_N"], color="black", lw=1.8, label="hoop friction F_h (eq 15)")
     a.set_title(f"(a) components at V = {v0:g} mm/s")
-    a.text(np.mean(case4_Ri_mm), a.get_ylim()[1] * 0.97, "Case 4\nR_i range", ha="center", va="top", fontsize=6)
-    a.legend(loc="upper right", fontsize=5.5)
+    a.text(np.mean(case4_Ri_mm), a.get_ylim()[1] * 0.97, "Case 4\n$R_i$ range", ha="center", va="top", fontsize=6)
+    a.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), fontsize=5.5, ncol=2)
     pick = np.unique([speeds[0], v0, speeds[-1]])
     for i, v in enumerate(pick):
         s = hoop[hoop["speed_mm_s"] == v].sort_values("Ri_mm")
         b.plot(s["Ri_mm"], s["total_friction_N"], color=OKABE_ITO[(i + 1) % len(OKABE_ITO)],
                ls=["-", "--", ":"][i % 3], label=f"F_c4 = F_g + F_h, V = {v:g} mm/s")
-    b.set_title("(b) total friction (eq 16): R_i matters far more than V")
-    b.legend(loc="upper right", fontsize=5.5)
+    b.set_title("(b) total friction (eq 16): $R_i$ matters far more than V")
+    b.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), fontsize=5.5, ncol=1)
     return save_figure(fig, path)

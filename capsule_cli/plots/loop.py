@@ -25,35 +25,160 @@ def data_label(synthetic: bool) -> str:
     return "synthetic data" if synthetic else "data"
 
 
+_STAT_WORDS = {"avg": "average", "max": "maximum", "min": "minimum", "wall_avg": "wall share",
+               "contact_avg": "area average"}
+
+
+def origin_of(sources: pd.Series | None, synthetic: bool = False) -> pd.Series | None:
+    """Per row, where a data point comes from: 'FE', 'experiment' (from a 'source' column citing the
+    paper) or None when the table does not say. Synthetic tables are 'synthetic'."""
+    if sources is None:
+        return None
+    if synthetic:
+        return pd.Series("synthetic", index=sources.index)
+    txt = sources.astype(str)
+    return pd.Series(np.where(txt.str.contains(r"\bFE\b|finite element", case=False, regex=True), "FE",
+                              "experiment"), index=sources.index)
+
+
+def _seeds(sources: pd.Series) -> str:
+    found = sorted(set(sources.astype(str).str.findall(r"seed (\d{3})").sum()))
+    return ", ".join(f"seed {x}" for x in found)
+
+
+def _value_text(col: str, value) -> str:
+    """'speed_mm_s', 0.5 -> 'V = 0.5 mm/s'; 'statistic', 'max' -> 'maximum'."""
+    names = {"speed_mm_s": "V", "Ri_mm": "$R_i$", "bend_radius_mm": "bend radius", "end_length_mm": "$L_e$",
+             "time_s": "t", "position_mm": "x"}
+    if col == "statistic":
+        return _STAT_WORDS.get(str(value), str(value))
+    base, suffix = split_unit(col)
+    if suffix:
+        try:
+            return f"{names.get(col, base.replace('_', ' '))} = {float(value):g} {unit_label(col)}"
+        except (TypeError, ValueError):
+            pass
+    return f"{base.replace('_', ' ')}: {value}"
+
+
+def _parse_curve(lab: str) -> dict[str, str]:
+    out = {}
+    for part in str(lab).split(", "):
+        if "=" in part:
+            k, v = part.split("=", 1)
+            out[k.strip()] = v.strip()
+        elif out:  # a value with a comma in it
+            last = list(out)[-1]
+            out[last] += ", " + part
+    return out
+
+
+def _matches(res: pd.DataFrame, combo: dict[str, str]) -> np.ndarray:
+    ok = np.ones(len(res), bool)
+    for k, v in combo.items():
+        if k not in res.columns:
+            continue
+        col = res[k]
+        try:
+            ok &= np.isclose(col.to_numpy(float), float(v))
+        except (TypeError, ValueError):
+            ok &= (col.astype(str) == v).to_numpy()
+    return ok
+
+
+_ORIGIN_MARKER = {"FE": dict(marker="^", mfc="none"), "experiment": dict(marker="o", mfc="none"),
+                  "synthetic": dict(marker="o", mfc="none"), None: dict(marker="o", mfc="none")}
+
+
 def plot_fit(res: pd.DataFrame, curves: pd.DataFrame, main: str, resp: str, path: str | Path,
              title: str = "", noise_sd: float | None = None, extra: pd.DataFrame | None = None,
              extra_label: str = "", data_label: str = "data") -> Path:
-    """Draw data and the calibrated model with its 95 % confidence band against ``main``."""
+    """Draw data and the calibrated model with its 95 % confidence band against ``main``.
+
+    One colour per covariate combination (curve), the data points in the colour of their curve; the
+    legend names the covariates physically (``V = 0.5 mm/s, maximum``) and only those that vary;
+    the ones that do not vary go to the legend title. Data points say where they come from:
+    synthetic, published FE or published experiment (from a ``source`` column).
+    """
     obs, pred, _ = _cols(resp)
-    fig, ax = figure(height_in=2.8)
-    ax.plot(res[main], res[obs], "o", ms=3, mfc="none", color="0.25", alpha=0.8, label=data_label)
-    for i, (cid, c) in enumerate(curves.groupby("curve_id", sort=True)):
-        col = OKABE_ITO[i % len(OKABE_ITO)]
+    synthetic = data_label.startswith("synthetic")
+    origin = origin_of(res["source"], synthetic) if "source" in res.columns else None
+    labels = curves.drop_duplicates("curve_id").sort_values("curve_id")
+    combos = {int(r.curve_id): _parse_curve(r.curve) for r in labels.itertuples() if r.curve not in ("model",
+                                                                                                    "at data")}
+    keys = list(dict.fromkeys(k for c in combos.values() for k in c))
+    varying = [k for k in keys if len({c.get(k) for c in combos.values()}) > 1]
+    fixed = [k for k in keys if k not in varying]
+    many = len(combos) > 3
+    fig, ax = figure(width="page" if many else "column", height_in=3.2 if many else 3.6)
+    colour = {cid: OKABE_ITO[i % len(OKABE_ITO)] for i, cid in enumerate(sorted(curves["curve_id"].unique()))}
+    drawn = np.zeros(len(res), bool)
+    for cid, combo in combos.items():
+        sel = _matches(res, {k: combo[k] for k in varying}) & ~drawn
+        drawn |= sel
+        for org in ([None] if origin is None else sorted(origin[sel].unique())):
+            pick = sel if origin is None else sel & (origin == org).to_numpy()
+            if pick.any():
+                ax.plot(res.loc[pick, main], res.loc[pick, obs], ls="none", ms=4, color=colour[cid], mew=1.0,
+                        zorder=3, **_ORIGIN_MARKER.get(org, _ORIGIN_MARKER[None]))
+    rest = ~drawn
+    if rest.any():
+        ax.plot(res.loc[rest, main], res.loc[rest, obs], "o", ms=3, mfc="none", color="0.25", alpha=0.8, zorder=3)
+    groups = list(curves.groupby("curve_id", sort=True))
+    same = len(groups) > 1 and all(len(c) == len(groups[0][1]) and np.allclose(
+        c["predicted"].to_numpy(), groups[0][1]["predicted"].to_numpy(), rtol=1e-9, atol=0) for _, c in groups)
+    if same and varying:  # the model does not depend on the covariates that vary: one line says so
+        c = groups[0][1]
+        ax.fill_between(c["x"], c["lower"], c["upper"], color="0.5", alpha=0.25, lw=0)
+        ax.plot(c["x"], c["predicted"], color="0.2",
+                label="model, the same for every " + " and ".join(_nice(k).split(" [")[0] for k in varying))
+        for cid, combo in combos.items():
+            ax.plot([], [], "o", ms=4, mfc="none", color=colour[cid],
+                    label="data at " + ", ".join(_value_text(k, combo[k]) for k in varying))
+        groups = []
+    for cid, c in groups:
+        col = colour[cid]
         lab = str(c["curve"].iloc[0])
         if lab == "at data":
             ax.errorbar(c["x"], c["predicted"], yerr=[c["predicted"] - c["lower"], c["upper"] - c["predicted"]],
                         fmt=".", ms=2, color=col, elinewidth=0.6, label="model (95 % band) at the data")
         else:
+            name = ", ".join(_value_text(k, combos[cid][k]) for k in varying) if cid in combos and varying \
+                else "model"
             ax.fill_between(c["x"], c["lower"], c["upper"], color=col, alpha=0.25, lw=0)
-            ax.plot(c["x"], c["predicted"], color=col, label=("model" if lab == "model" else lab) + " (95 % band)")
+            ax.plot(c["x"], c["predicted"], color=col, label=name)
     if extra is not None:
         for i, (cid, c) in enumerate(extra.groupby("curve_id", sort=True)):
             lab = str(c["curve"].iloc[0])
             if lab == "at data":
                 ax.plot(c["x"], c["predicted"], "x", ms=3, color=OKABE_ITO[1], label=extra_label)
             else:
-                ax.plot(c["x"], c["predicted"], "--", color=OKABE_ITO[(i + 1) % len(OKABE_ITO)],
-                        label=extra_label if i == 0 else None)
+                ax.plot(c["x"], c["predicted"], "--", color=colour.get(cid, OKABE_ITO[(i + 1) % len(OKABE_ITO)]),
+                        lw=0.9, label=extra_label if i == 0 else None)
+    # origin of the points, in black so it reads apart from the colours of the covariates
+    if origin is None:
+        ax.plot([], [], "o", ms=4, mfc="none", color="0.25",
+                label=data_label)
+    else:
+        seeds = _seeds(res["source"])
+        for org in sorted(origin.unique()):
+            name = {"FE": "published FE", "experiment": "published experiment"}.get(org, "synthetic data")
+            ax.plot([], [], ls="none", ms=4, color="0.25", label=f"{name}" + (f" ({seeds})" if seeds and
+                                                                               org != "synthetic" else ""),
+                    **_ORIGIN_MARKER.get(org, _ORIGIN_MARKER[None]))
     ax.set_xlabel(_nice(main))
     ax.set_ylabel(_nice(resp))
     if title:
-        ax.set_title(title)
-    ax.legend(loc="best", fontsize=6)
+        ax.set_title(title, fontsize=7)
+    legend_title = "lines: model, 95 % band"
+    if fixed:
+        legend_title += "\n" + ", ".join(_value_text(k, list(combos.values())[0][k]) for k in fixed)
+    if many:  # page width: the legend beside the axes
+        ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=6, title=legend_title, title_fontsize=6,
+                  borderaxespad=0.0)
+    else:  # column width: below, so the axes keep the width
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.22), fontsize=6, title=legend_title,
+                  title_fontsize=6, ncol=2)
     return save_figure(fig, path)
 
 

@@ -64,6 +64,13 @@ def figure(ncols: int = 1, nrows: int = 1, width: str = "column", height_in: flo
     return plt.subplots(nrows, ncols, figsize=(w, h), constrained_layout=True, **kw)
 
 
+def blank_figure(width: str = "column", height_in: float = 2.6):
+    """Return an empty figure sized for a column or a page (for custom grids of axes)."""
+    use_style()
+    w = COLUMN_WIDTH_IN if width == "column" else PAGE_WIDTH_IN
+    return plt.figure(figsize=(w, height_in), layout="constrained")
+
+
 def save_figure(fig, path: str | Path) -> Path:
     """Save ``fig`` atomically (format from the suffix: .png or .pdf) and close it."""
     path = Path(path)

@@ -92,6 +92,7 @@ MAGNIFY = TableSchema("dynamics_magnify", "magnification factor A_f = max|F_i|/P
 ))
 LANDMARKS = TableSchema("dynamics_landmarks", "frequency landmarks found by the sweeps beside seed 000 section 5.3", (
     C("case", "string", "friction case label", unit=""),
+    C("case_name", "string", "physical name of the friction case", unit=""),
     C("protocol", "string", "initial conditions of the sweep (rest/up/down)", unit=""),
     C("landmark", "string", "what changes at this frequency", unit=""),
     C("found_Hz", "float64", "frequency found by the sweep (NaN: not found in the range)"),
@@ -452,10 +453,14 @@ def _longest_run_start(f: np.ndarray, ok: np.ndarray) -> float:
 def find_landmarks(points: pd.DataFrame, v_tol_mm_s: float = 1e-3) -> dict[str, float]:
     """Return the frequency landmarks of a sweep over f (seed 000 section 5.3 wording).
 
+    The definitions (also printed in ``landmarks.md`` and used in docs/dynamics.md):
+
     * first grazing: the lowest f from which every higher f impacts, provided some lower f
-      does not (NaN when every point impacts, as with P_f = 2.5 N);
+      does not (NaN when every point impacts, as with P_f = 2.5 N); impacts in a window below
+      it (eq 22 read in mm/s) are reported apart by :func:`impact_windows_below`;
     * period-1 with two impacts begins: first f of the longest run of period-1 responses
-      with two impacts per period;
+      with two impacts per period, at or above the first grazing when there is one (the
+      paper's order: grazing, chaos windows, period-1 with two impacts, one impact);
     * two -> one impact: the lowest f from which every higher f has exactly one impact per
       period (NaN if no point has two or more);
     * onset of forward progression: the lowest f from which every higher f has an average
@@ -466,13 +471,57 @@ def find_landmarks(points: pd.DataFrame, v_tol_mm_s: float = 1e-3) -> dict[str, 
     imp = p["impacts_per_period"].to_numpy()
     per1 = p["period_number"].to_numpy() == 1
     first_grazing = _from_here_on(f, imp > 0) if (imp == 0).any() else float("nan")
+    above = f >= first_grazing if np.isfinite(first_grazing) else np.ones(len(f), bool)
     return {
         "first grazing (impacts from here on)": first_grazing,
-        "period-1 with two impacts begins": _longest_run_start(f, per1 & np.isclose(imp, 2.0)),
+        "period-1 with two impacts begins": _longest_run_start(f, per1 & np.isclose(imp, 2.0) & above),
         "two impacts -> one impact per period": _from_here_on(f, np.isclose(imp, 1.0)) if (imp >= 2).any()
         else float("nan"),
         "onset of forward progression": _from_here_on(f, p["velocity_mm_s"].to_numpy() > v_tol_mm_s),
     }
+
+
+def impact_windows_below(points: pd.DataFrame, first_grazing_Hz: float) -> list[tuple[float, float]]:
+    """Return the frequency windows [f_lo, f_hi] [Hz] below the first grazing where the shell impacts."""
+    if not np.isfinite(first_grazing_Hz):
+        return []
+    p = points.sort_values("value")
+    f = p["value"].to_numpy()
+    hit = (p["impacts_per_period"].to_numpy() > 0) & (f < first_grazing_Hz)
+    windows, start = [], None
+    for i, h in enumerate(hit):
+        if h and start is None:
+            start = f[i]
+        if start is not None and (not h or i == len(hit) - 1):
+            windows.append((float(start), float(f[i] if h else f[i - 1])))
+            start = None
+    return windows
+
+
+def case_name(friction: dict | None, label: str = "") -> str:
+    """Physical name of a friction case from its provenance (``asdict(Friction)``), for legends and tables."""
+    if not friction:
+        return label
+    kind = friction.get("kind")
+    unit = friction.get("speed_unit", "mm/s")
+    if kind == "coulomb":
+        lvl = float(friction.get("level_N", float("nan")))
+        txt = f"Coulomb $P_f$ = {lvl * 1e3:g} mN" if lvl < 0.1 else f"Coulomb $P_f$ = {lvl:g} N"
+        st = friction.get("static_N")
+        return txt + (f", static {st:g} N" if st is not None else "")
+    if kind == "fixed":
+        return "shell fixed ($P_f$ = ∞)"
+    if kind in ("eq22", "eq23"):
+        law = f"speed law eq {kind[2:]}"
+        reading = "as written" if friction.get("literal") else "well-posed"
+        return f"{law}, V in {unit}" + (" (sensitivity)" if unit != "mm/s" else "") + \
+            ("" if reading == "well-posed" else " (literal)")
+    return label or str(kind)
+
+
+def plain(text: str) -> str:
+    """A legend name without TeX markup (for markdown tables)."""
+    return text.replace("$P_f$", "P_f").replace("$", "")
 
 
 def landmark_table(sweeps: list[tuple[str, str, str, pd.DataFrame]]) -> pd.DataFrame:
@@ -482,11 +531,100 @@ def landmark_table(sweeps: list[tuple[str, str, str, pd.DataFrame]]) -> pd.DataF
         found = find_landmarks(points)
         vals = np.sort(points["value"].to_numpy())
         res = float(np.min(np.diff(vals))) if len(vals) > 1 else float("nan")
-        for name, paper, src in PAPER_LANDMARKS[figure]:
-            got = found[name]
-            rows.append({"case": label, "protocol": protocol, "landmark": name, "found_Hz": got, "paper_Hz": paper,
-                         "difference_Hz": got - paper, "resolution_Hz": res, "paper_source": src})
+        name = case_name(points.attrs.get("provenance", {}).get("friction"), label)
+        for lm_name, paper, src in PAPER_LANDMARKS[figure]:
+            got = found[lm_name]
+            rows.append({"case": label, "case_name": plain(name), "protocol": protocol, "landmark": lm_name,
+                         "found_Hz": got, "paper_Hz": paper, "difference_Hz": got - paper, "resolution_Hz": res,
+                         "paper_source": src})
     return pd.DataFrame(rows)
+
+
+LANDMARK_DEFINITIONS = {
+    "first grazing (impacts from here on)":
+        "the lowest f from which the magnet hits the front constraint at every higher f of the sweep, provided "
+        "some lower f does not impact ('-' when every f impacts). Impact windows below it are listed apart.",
+    "period-1 with two impacts begins":
+        "the first f of the longest run of period-1 responses (the Poincaré point repeats every drive period) "
+        "with two impacts per period, searched at or above the first grazing.",
+    "two impacts -> one impact per period":
+        "the lowest f from which every higher f has exactly one impact per period ('-' when no f has two).",
+    "onset of forward progression":
+        "the lowest f from which every higher f has an average capsule velocity above 0.001 mm/s.",
+}
+
+_PROTOCOL_WORDS = {"rest": "every frequency from rest (zero state at phase 0)",
+                   "up": "continuation: each frequency starts from the end state of the next lower one",
+                   "down": "continuation: each frequency starts from the end state of the next higher one"}
+
+
+def _fmt_hz(x: float) -> str:
+    return "-" if not np.isfinite(x) else f"{x:.2f}"
+
+
+def landmarks_markdown(lm: pd.DataFrame, parsed: list[tuple[str, str, str, pd.DataFrame, str]]) -> str:
+    """Markdown report of the landmarks: title, what and where from, drive, protocol, definitions, tables.
+
+    parsed: [(case label, figure, protocol, points table (with provenance), source folder)].
+    """
+    out = ["# Frequency landmarks of the vibro-impact sweeps beside seed 000 section 5.3", "",
+           "What this is: the drive frequencies at which the response of the one-sided capsule prototype "
+           "changes character, found by the frequency sweeps of `make study` (rule `dynamics_report`), beside the "
+           "values that seed 000 section 5.3 reports for its Figs 17 and 18. Our numbers come from the sweep "
+           "tables listed under *Sources* (`points.parquet`, one row per frequency); the paper's from the text of "
+           "seed 000 section 5.3 (`PAPER_LANDMARKS` in `capsule_cli/steps/dynamics.py`). "
+           "`docs/dynamics.md` discusses the differences. All data are simulated (no measurement).", "",
+           "## Drive, model and protocol", ""]
+    out += ["| case | friction (physical) | seed 000 figure | protocol | model | drive | frequencies | periods "
+            "(transient + recorded) |", "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for label, fig, protocol, pts, _ in parsed:
+        prov = pts.attrs.get("provenance", {})
+        drv = prov.get("drive", {})
+        f = np.sort(pts["value"].to_numpy())
+        step = float(np.min(np.diff(f))) if len(f) > 1 else float("nan")
+        wave = drv.get("waveform", "harmonic")
+        amp = drv.get("amplitude_N")
+        drive = ("harmonic P_d cos(2 pi f t)" if wave == "harmonic" else wave) + \
+            (f", P_d = {amp * 1e3:g} mN" if amp is not None else "")
+        out.append(f"| `{label}` | {plain(case_name(prov.get('friction'), label))} | Fig {fig[-2:]} | {protocol} | "
+                   f"{prov.get('model_name', '?')} | {drive} | "
+                   f"{f.min():g} to {f.max():g} Hz, step {step:.2g} Hz | "
+                   f"{prov.get('transient_periods', '?')} + {prov.get('periods', '?')} |")
+    out += ["", "Protocols: " + "; ".join(f"**{k}**: {v}" for k, v in _PROTOCOL_WORDS.items()
+                                          if k in {p for _, _, p, _, _ in parsed}) + ". "
+            "The response is multistable, so a landmark can differ between protocols (hysteresis).", "",
+            "## Definitions", ""]
+    out += [f"* **{k}**: {v}" for k, v in LANDMARK_DEFINITIONS.items()]
+    out += ["* **found - paper**: our value minus the paper's; compare it with the sweep step (the grid "
+            "resolution) and with the spread between protocols.", ""]
+    for fig, title in (("fig17", "Seed 000 Fig 17 (P_d = 150 mN, low friction)"),
+                       ("fig18", "Seed 000 Fig 18 (P_d = 150 mN, high friction)")):
+        sub = lm[lm["case"].isin([lab for lab, fg, _, _, _ in parsed if fg == fig])]
+        if sub.empty:
+            continue
+        out += [f"## {title}", "",
+                "| friction | protocol | landmark | found [Hz] | paper [Hz] | found - paper [Hz] | sweep step [Hz] |",
+                "| --- | --- | --- | --- | --- | --- | --- |"]
+        for r in sub.itertuples():
+            out.append(f"| {r.case_name} | {r.protocol} | {r.landmark} | {_fmt_hz(r.found_Hz)} | "
+                       f"{_fmt_hz(r.paper_Hz)} | {_fmt_hz(r.difference_Hz)} | {_fmt_hz(r.resolution_Hz)} |")
+        out += ["", "Where the paper's values come from: " + "; ".join(
+            dict.fromkeys(f"{n}: {src}" for n, _, src in PAPER_LANDMARKS[fig])) + ".", ""]
+    notes = []
+    for label, fig, protocol, pts, _ in parsed:
+        g = find_landmarks(pts)["first grazing (impacts from here on)"]
+        w = impact_windows_below(pts, g)
+        if w:
+            name = plain(case_name(pts.attrs.get("provenance", {}).get("friction"), label))
+            notes.append(f"* {name}, {protocol}: impacts also at " +
+                         ", ".join(f"{a:g}-{b:g} Hz" if a != b else f"{a:g} Hz" for a, b in w) +
+                         f", below the first grazing at {g:.2f} Hz (the friction holds the shell while the "
+                         "spring stretches; docs/dynamics.md).")
+    if notes:
+        out += ["## Impacts below the first grazing", ""] + notes + [""]
+    out += ["## Sources", ""] + [f"* `{label}` ({protocol}): `{src}/points.parquet`"
+                                 for label, _, protocol, _, src in parsed] + [""]
+    return "\n".join(out)
 
 
 DUTY_MAP = TableSchema("dynamics_duty_map", "square-wave progression speed over (f, duty) (seed 004 Scenario 3)", (
@@ -512,12 +650,20 @@ def duty_map_summary(dm: pd.DataFrame) -> str:
     at_paper = dm[np.isclose(dm["f_Hz"], PAPER_DUTY_BEST[0]) & np.isclose(dm["duty"], PAPER_DUTY_BEST[1])]
     v_paper = f"{at_paper['velocity_mm_s'].iloc[0]:.3g} mm/s" if len(at_paper) else "not on the grid"
     rows = [
+        "# Square-wave progression speed over frequency and duty cycle beside seed 004 section 6", "",
+        "What this is: the average capsule velocity of the double-sided two-mass model (seed 002 Table 2) under a "
+        "square-wave drive, over drive frequency f and duty cycle D, simulated by the duty sweeps of `make study` "
+        "(rule `dynamics_report`; tables `duty/f*/points.parquet`, gathered in `duty_map.parquet` beside this "
+        "file). The paper's values come from the text of seed 004 section 6 (a 3D FE model).", "",
+        f"Grid: f = {', '.join(f'{x:g}' for x in sorted(dm['f_Hz'].unique()))} Hz; D from "
+        f"{dm['duty'].min():.3g} to {dm['duty'].max():.3g} ({dm['duty'].nunique()} values).", "",
         "| quantity | this model | seed 004 (FE) |",
         "| --- | --- | --- |",
         f"| fastest (f, duty) | {best['f_Hz']:g} Hz, {best['duty']:.3g} ({best['velocity_mm_s']:.3g} mm/s) | "
         f"{PAPER_DUTY_BEST[0]:g} Hz, {PAPER_DUTY_BEST[1]:g} |",
         f"| speed at the paper's fastest point | {v_paper} | the fastest of its grid |",
-        f"| speeds at {f_lo:g} Hz | {lo.min():.3g} to {lo.max():.3g} mm/s | about 0 (vibrates in place) |",
+        f"| speeds at {f_lo:g} Hz | {lo.min():.3g} to {lo.max():.3g} mm/s | "
+        + ("about 0 (vibrates in place)" if np.isclose(f_lo, 10.0) else "not reported (at 10 Hz: about 0)") + " |",
     ]
     note = ("\nSource: " + PAPER_DUTY_SOURCE + ". The paper's numbers come from a 3D FE model of a coated, "
             "soft capsule in a compliant intestine; this map is the rigid-substrate two-mass model with the "
@@ -543,33 +689,28 @@ def report(out: Path, sweeps: list[str], duty_sweeps: list[str], magnify: Path |
         meta = json.loads((Path(d) / "sweep.json").read_text()) if (Path(d) / "sweep.json").is_file() else {}
         if meta and meta.get("parameter") != "f_Hz":
             raise InputError(f"{d}: not a frequency sweep (parameter {meta.get('parameter')})")
-        parsed.append((label, fig, protocol, read_table(Path(d) / "points.parquet"), read_table(Path(d) / "sweep.parquet")))
+        parsed.append((label, fig, protocol, read_table(Path(d) / "points.parquet"),
+                       read_table(Path(d) / "sweep.parquet"), d))
     if parsed:
-        lm = landmark_table([(lab, fig, prot, pts) for lab, fig, prot, pts, _ in parsed])
+        lm = landmark_table([(lab, fig, prot, pts) for lab, fig, prot, pts, _, _ in parsed])
         prov = provenance(sources=sweeps)
         written.append(write_table(lm, out / "landmarks.parquet", LANDMARKS, prov))
-        lines = ["| case | protocol | landmark | found [Hz] | paper [Hz] | found - paper [Hz] | sweep step [Hz] |",
-                 "| --- | --- | --- | --- | --- | --- | --- |"]
-        for r in lm.itertuples():
-            fmt = (lambda x: "-" if not np.isfinite(x) else f"{x:.2f}")
-            lines.append(f"| {r.case} | {r.protocol} | {r.landmark} | {fmt(r.found_Hz)} | {fmt(r.paper_Hz)} | "
-                         f"{fmt(r.difference_Hz)} | {fmt(r.resolution_Hz)} |")
-        written.append(write_text_atomic(out / "landmarks.md", "\n".join(lines) + "\n"))
+        written.append(write_text_atomic(out / "landmarks.md", landmarks_markdown(
+            lm, [(lab, fig, prot, pts, d) for lab, fig, prot, pts, _, d in parsed])))
+        short = {"first grazing (impacts from here on)": "grazing",
+                 "period-1 with two impacts begins": "period-1, 2 impacts",
+                 "two impacts -> one impact per period": "2→1 impacts",
+                 "onset of forward progression": "forward"}
         for fig in ("fig17", "fig18"):
-            for protocol in dict.fromkeys(p for _, fg, p, _, _ in parsed if fg == fig):
-                cases = [(lab, pts, poin) for lab, fg, prot, pts, poin in parsed if fg == fig and prot == protocol]
+            for protocol in dict.fromkeys(p for _, fg, p, _, _, _ in parsed if fg == fig):
+                cases = [(case_name(pts.attrs.get("provenance", {}).get("friction"), lab), pts, poin)
+                         for lab, fg, prot, pts, poin, _ in parsed if fg == fig and prot == protocol]
                 amps = sorted({pts.attrs.get("provenance", {}).get("drive", {}).get("amplitude_N") for _, pts, _ in cases}
                               - {None})
                 amp = ", ".join(f"{a * 1e3:g}" for a in amps) or "?"
-                title = (f"$P_d$ = {amp} mN: {' vs '.join(lab for lab, _, _ in cases)} "
-                         f"(seed 000 Fig {fig[-2:]}, paper values dotted)")
-                lines_ = {name: hz for name, hz, _ in PAPER_LANDMARKS[fig]}
-                short = {"first grazing (impacts from here on)": "paper: grazing",
-                         "period-1 with two impacts begins": "paper: period-1, 2 impacts",
-                         "two impacts -> one impact per period": "paper: 2→1 impacts",
-                         "onset of forward progression": "paper: forward"}
+                title = f"Seed 000 Fig {fig[-2:]}: harmonic drive $P_d$ = {amp} mN, one-sided prototype (simulated)"
                 written.append(P.bifurcation_figure(cases, protocol, title, out / f"{fig}_{protocol}.png",
-                                                    {short[k]: v for k, v in lines_.items()}))
+                                                    {short[k]: hz for k, hz, _ in PAPER_LANDMARKS[fig]}))
     if duty_sweeps:
         rows = []
         protocols = set()
@@ -594,6 +735,6 @@ def report(out: Path, sweeps: list[str], duty_sweeps: list[str], magnify: Path |
     if magnify is not None:
         df = read_table(magnify)
         prot = df.attrs["provenance"].get("protocol", "?")
-        written.append(P.magnify_figure(df, f"Magnification factor $A_f$ (seed 000 Fig 19), protocol: {prot}",
+        written.append(P.magnify_figure(df, f"Magnification factor $A_f$ = max|$F_i$|/$P_d$ (seed 000 eq 24, Fig 19), one-sided prototype, simulated; protocol: {prot}",
                                         out / "magnify.png"))
     return written

@@ -16,7 +16,7 @@ import pandas as pd
 from ..config import config_hash, configs_dir
 from ..effects.model import Model
 from ..errors import InputError
-from ..tables import LABEL_COLUMNS, provenance, response_column, write_measurements
+from ..tables import LABEL_COLUMNS, provenance, response_column, user_path, write_measurements
 from ..units import split_unit
 
 #: default design per kind (configs/designs/)
@@ -98,8 +98,8 @@ def synth_provenance(model: Model, model_text: str, noise_sd: float, noise_rel: 
     """Return the metadata of a synthetic table (true model, noise, seed, design)."""
     return provenance(config_hash=model.hash, seed=seed, synthetic=True,
                       true_model=model.content, true_model_text=model_text, true_model_hash=model.hash,
-                      true_model_file=model.path, noise_sd=noise_sd, noise_rel=noise_rel, noise_unit=unit,
-                      replicates=replicates, design=str(design_path), plugins=plugins,
+                      true_model_file=user_path(model.path) if model.path else model.path, noise_sd=noise_sd, noise_rel=noise_rel, noise_unit=unit,
+                      replicates=replicates, design=user_path(design_path), plugins=plugins,
                       design_hash=config_hash(Path(design_path).read_text(encoding="utf-8", errors="replace"))
                       if Path(design_path).is_file() else None)
 

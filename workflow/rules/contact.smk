@@ -126,7 +126,8 @@ rule contact_figure_speed:
         reference=rules.contact_reference.output.table,
         code=CONTACT_PLOT_PKG,
     output:
-        figure=f"{CONTACT_DIR}/pressure_vs_speed.png",
+        figure=captioned(f"{CONTACT_DIR}/pressure_vs_speed.png", "contact_pressure_vs_speed", CAT_CONTACT,
+                         "Cases 1-3 over speed (seed 003 Figs 15, 17, 19)"),
     log:
         f"{CONTACT_DIR}/logs/contact_figure_speed.log",
     shell:
@@ -139,7 +140,8 @@ rule contact_figure_hoop_speed:
         table=rules.contact_hoop_vs_speed.output.table,
         code=CONTACT_PLOT_PKG,
     output:
-        figure=f"{CONTACT_DIR}/hoop_vs_speed.png",
+        figure=captioned(f"{CONTACT_DIR}/hoop_vs_speed.png", "contact_hoop_vs_speed", CAT_CONTACT,
+                         "Hoop pressure over speed and R_i (seed 003 eq 14)"),
     log:
         f"{CONTACT_DIR}/logs/contact_figure_hoop_speed.log",
     shell:
@@ -152,7 +154,8 @@ rule contact_figure_radius:
         reference=rules.contact_reference.output.table,
         code=CONTACT_PLOT_PKG,
     output:
-        figure=f"{CONTACT_DIR}/hoop_vs_radius.png",
+        figure=captioned(f"{CONTACT_DIR}/hoop_vs_radius.png", "contact_hoop_vs_radius", CAT_CONTACT,
+                         "Hoop pressure over speed and R_i (seed 003 eq 14)"),
     log:
         f"{CONTACT_DIR}/logs/contact_figure_radius.log",
     shell:
@@ -165,7 +168,8 @@ rule contact_figure_profile:
         table=rules.contact_hoop_profile.output.profile,
         code=CONTACT_PLOT_PKG,
     output:
-        figure=f"{CONTACT_DIR}/hoop_profile.png",
+        figure=captioned(f"{CONTACT_DIR}/hoop_profile.png", "contact_hoop_profile", CAT_CONTACT,
+                         "Pressure along the capsule (seed 003 Fig 12)"),
     log:
         f"{CONTACT_DIR}/logs/contact_figure_profile.log",
     shell:
@@ -180,8 +184,10 @@ rule contact_figure_end_shape:
         reference=rules.contact_reference.output.table,
         code=CONTACT_PLOT_PKG,
     output:
-        figure=f"{CONTACT_DIR}/end_shape.png",
-        profile_figure=f"{CONTACT_DIR}/end_shape_profile.png",
+        figure=captioned(f"{CONTACT_DIR}/end_shape.png", "contact_end_shape", CAT_CONTACT,
+                         "End shape (seed 001 section 6, Fig 15a)"),
+        profile_figure=captioned(f"{CONTACT_DIR}/end_shape_profile.png", "contact_end_shape_profile",
+                                 CAT_CONTACT, "End shape (seed 001 section 6, Fig 15a)"),
     log:
         f"{CONTACT_DIR}/logs/contact_figure_end_shape.log",
     shell:

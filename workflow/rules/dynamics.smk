@@ -140,11 +140,17 @@ rule dynamics_report:
         code=pkg("plots/dynamics.py", "steps/dynamics.py"),
     output:
         landmarks=f"{DYN_DIR}/report/landmarks.parquet",
-        table=f"{DYN_DIR}/report/landmarks.md",
-        duty_map=f"{DYN_DIR}/report/duty_map.png",
-        duty_table=f"{DYN_DIR}/report/duty_map.md",
-        figs=[f"{DYN_DIR}/report/{fig}_{p}.png" for fig in sorted({c.figure for c in DYN_CASES.values()})
-              for p in DYN.frequency_sweeps.protocols],
+        table=captioned(f"{DYN_DIR}/report/landmarks.md", "dynamics_landmarks", CAT_DYNAMICS,
+                        "Landmarks beside seed 000 section 5.3"),
+        duty_map=captioned(f"{DYN_DIR}/report/duty_map.png", "dynamics_duty_map", CAT_DYNAMICS,
+                           "Square-wave frequency x duty map (seed 004 Scenario 3)"),
+        duty_table=captioned(f"{DYN_DIR}/report/duty_map.md", "dynamics_duty_map", CAT_DYNAMICS,
+                             "Square-wave frequency x duty map (seed 004 Scenario 3)"),
+        figs=[captioned(f"{DYN_DIR}/report/{fig}_{p}.png", "dynamics_bifurcation", CAT_DYNAMICS,
+                        f"Seed 000 Fig {fig[-2:]}: bifurcation and progression", protocol=p)
+              for fig in sorted({c.figure for c in DYN_CASES.values()}) for p in DYN.frequency_sweeps.protocols],
+        magnify_fig=[captioned(f"{DYN_DIR}/report/magnify.png", "dynamics_magnify", CAT_DYNAMICS,
+                               "Magnification factor A_f (seed 000 eq 24, Fig 19)")] if DYN_MAGNIFY else [],
     params:
         sweeps=" ".join(f"--sweep {l}:{fig}:{p}:{DYN_DIR}/sweeps/{l}_{p}" for l, fig, p in DYN_SWEEPS),
         duty=" ".join(f"--duty-sweep {DYN_DIR}/duty/f{f}" for f in DYN_DUTY_F),

@@ -76,7 +76,10 @@ rule friction_fit_case1:
         data=rules.friction_synth_case1.output.table,
         code=FRICTION_PKG + pkg("fitting.py", "plots/friction.py"),
     output:
-        **{f.split(".")[0] + "_" + f.split(".")[1]: f"{FRICTION_DIR}/fit_case1_{{law}}/{f}" for f in FRICTION_FIT_FILES},
+        **{f.split(".")[0] + "_" + f.split(".")[1]: f"{FRICTION_DIR}/fit_case1_{{law}}/{f}" for f in FRICTION_FIT_FILES
+           if f != "fit.png"},
+        fit_png=captioned(f"{FRICTION_DIR}/fit_case1_{{law}}/fit.png", "friction_fit", CAT_FRICTION,
+                          "Fits to synthetic Case 1 pull tests (seed 000 eq 17)"),
     wildcard_constraints:
         law="power|power_fixed_n|viscous|stribeck|coulomb",
     params:
@@ -103,7 +106,8 @@ rule friction_figure_speed:
         fit=[f"{FRICTION_DIR}/fit_case1_{C_FRICTION.fit_laws[0]}/{f}" for f in FRICTION_FIT_FILES],
         code=FRICTION_PLOT_PKG,
     output:
-        figure=f"{FRICTION_DIR}/friction_vs_speed.png",
+        figure=captioned(f"{FRICTION_DIR}/friction_vs_speed.png", "friction_vs_speed", CAT_FRICTION,
+                         "Friction over speed, Cases 1 and 4 (seed 000 Figs 9c, 13c)"),
     params:
         fit=f"{FRICTION_DIR}/fit_case1_{C_FRICTION.fit_laws[0]}",
         radii=C_FRICTION.figure_Ri_mm,
@@ -121,7 +125,8 @@ rule friction_figure_radius:
         hoop=rules.friction_hoop_grid.output.table,
         code=FRICTION_PLOT_PKG,
     output:
-        figure=f"{FRICTION_DIR}/hoop_friction_vs_radius.png",
+        figure=captioned(f"{FRICTION_DIR}/hoop_friction_vs_radius.png", "friction_hoop_vs_radius", CAT_FRICTION,
+                         "Hoop friction over R_i (seed 000 eqs 3-16)"),
     params:
         speed=C_FRICTION.components_speed_mm_s,
     log:

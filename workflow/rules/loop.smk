@@ -68,7 +68,7 @@ rule loop_compare_base:
         code=LOOP_PKG,
     output:
         metrics=f"{LOOP_DIR}/{{demo}}/compare_base/metrics.json",
-        fit=f"{LOOP_DIR}/{{demo}}/compare_base/fit.png",
+        fit=captioned(f"{LOOP_DIR}/{{demo}}/compare_base/fit.png", "loop_fit", CAT_LOOP, "Model against data"),
         ledger=f"{LOOP_DIR}/{{demo}}/ledger_0_base.parquet",
     params:
         out=f"{LOOP_DIR}/{{demo}}/compare_base",
@@ -87,7 +87,7 @@ rule loop_diagnose:
         code=LOOP_PKG,
     output:
         diagnosis=f"{LOOP_DIR}/{{demo}}/diagnose/diagnosis.json",
-        report=f"{LOOP_DIR}/{{demo}}/diagnose/diagnosis.md",
+        report=captioned(f"{LOOP_DIR}/{{demo}}/diagnose/diagnosis.md", "loop_diagnosis", CAT_LOOP, "Diagnoses"),
         model=f"{LOOP_DIR}/{{demo}}/improved_model.yaml",
     params:
         out=f"{LOOP_DIR}/{{demo}}/diagnose",
@@ -109,7 +109,7 @@ rule loop_compare_improved:
         code=LOOP_PKG,
     output:
         metrics=f"{LOOP_DIR}/{{demo}}/compare_improved/metrics.json",
-        fit=f"{LOOP_DIR}/{{demo}}/compare_improved/fit.png",
+        fit=captioned(f"{LOOP_DIR}/{{demo}}/compare_improved/fit.png", "loop_fit", CAT_LOOP, "Model against data"),
         ledger=f"{LOOP_DIR}/{{demo}}/ledger_1_improved.parquet",
     params:
         out=f"{LOOP_DIR}/{{demo}}/compare_improved",
@@ -126,7 +126,7 @@ rule loop_ledger_plot:
         base=f"{LOOP_DIR}/{{demo}}/ledger_0_base.parquet",
         improved=f"{LOOP_DIR}/{{demo}}/ledger_1_improved.parquet",
     output:
-        fig=f"{LOOP_DIR}/{{demo}}/ledger.png",
+        fig=captioned(f"{LOOP_DIR}/{{demo}}/ledger.png", "loop_ledger", CAT_LOOP, "Error falling (ledgers)"),
     log:
         f"{LOOP_DIR}/{{demo}}/logs/ledger_plot.log",
     shell:
