@@ -37,7 +37,8 @@ PROVENANCE_KEY = b"capsule_cli"
 def atomic_path(path: str | os.PathLike):
     """Yield a temporary path beside ``path``; move it into place only on success.
 
-    A failed write leaves neither a half-written file nor the temporary one.
+    A failed write (an exception, Ctrl-C, SIGTERM) leaves neither a half-written file
+    nor the temporary one; the file gets the permissions the user's umask gives.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -45,11 +46,19 @@ def atomic_path(path: str | os.PathLike):
     os.close(fd)
     try:
         yield Path(tmp)
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; a file gets what the umask gives
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+def _umask() -> int:
+    """Return the process umask (read by setting and restoring it)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
