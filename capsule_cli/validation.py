@@ -191,3 +191,30 @@ def check_bounds(values: Mapping[str, float], bounds: Mapping[str, tuple[float, 
     for k, (lo, hi) in bounds.items():
         if k in values and not (lo <= values[k] <= hi):
             raise InputError(f"{where}: params.{k}: value {values[k]:g} outside its bounds [{lo:g}, {hi:g}]")
+
+
+def check_model_file_bounds(model: str | os.PathLike, overrides: Mapping[str, float] | None = None) -> None:
+    """Raise InputError when a model file's value (or its ``--set`` override) lies outside the file's bounds.
+
+    ``model`` may also be a parameter-set name (no bounds: nothing to check). Called by every
+    command that reads a model file (compare, diagnose, synth, friction predict, simulate, sweep),
+    so that a file one command accepts is accepted by all.
+    """
+    from .config import FreeParam, load_model_file, read_yaml
+
+    p = Path(model)
+    if p.suffix.lower() not in (".yaml", ".yml") or not p.is_file():
+        return
+    data = read_yaml(p)
+    if not (isinstance(data, dict) and "kind" in data and "base" in data):
+        return  # a parameter-set file
+    mf = load_model_file(p)
+    values, bounds = {}, {}
+    for key, val in (mf.params or {}).items():
+        if isinstance(val, FreeParam) and val.bounds is not None:
+            values[key] = val.value
+            bounds[key] = (float(val.bounds[0]), float(val.bounds[1]))
+    for key, v in (overrides or {}).items():
+        if key in bounds:
+            values[key] = float(v)
+    check_bounds(values, bounds, str(p))

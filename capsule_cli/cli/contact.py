@@ -13,7 +13,7 @@ import pandas as pd
 import typer
 
 from ..errors import InputError
-from .common import QUIET, ensure_suffix, out_option
+from .common import QUIET, check_outputs, ensure_suffix, out_option
 
 
 class ModelChoice(str, Enum):
@@ -112,6 +112,7 @@ def register(app: typer.Typer) -> None:
         Defaults reproduce seed 003: Hertz a = 0.236 mm, P_avg 0.55 kPa, P_max 0.71 kPa
         (0.4 g); hoop 10.80 kPa at 4 mm/s and 10.92 kPa at 10 mm/s (R_i = 5 mm).
         """
+        check_outputs(file=out, profile_out=profile_out)  # before any work (exit 2 naming the path)
         from ..steps import contact as step
         from ..tables import provenance, write_table
         from ..config import config_hash, load_param_set
@@ -171,6 +172,7 @@ def register(app: typer.Typer) -> None:
         quiet: bool = QUIET,
     ):
         """Render the published contact pressures (with a citation per row) to a Parquet table."""
+        check_outputs(file=out)  # before any work (exit 2 naming the path)
         from ..steps import contact as step
         from ..tables import provenance, write_table
 
@@ -196,6 +198,7 @@ def register(app: typer.Typer) -> None:
         quiet: bool = QUIET,
     ):
         """Draw a contact-stage figure from tables (no physics is recomputed)."""
+        check_outputs(file=out)  # before any work (exit 2 naming the path)
         from ..plots import contact as plots
         from ..steps import contact as step
         from ..tables import read_table
@@ -247,6 +250,7 @@ def register(app: typer.Typer) -> None:
         Writes parameters with 95 % intervals, R², the CV table and the chosen order
         (fit.json), the fitted curves with 95 % bands (curve.parquet), residuals and a figure.
         """
+        check_outputs(folder=out)  # before any work (exit 2 naming the path)
         from ..models.contact import relaxation_pressure_factor
         from ..plots.contact import plot_relax_fit
         from ..steps import contact as cstep

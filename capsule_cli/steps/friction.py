@@ -25,6 +25,7 @@ from ..errors import InputError
 from ..fitting import FitResult, fit_least_squares, prediction_band
 from ..models import friction as fm
 from ..tables import Column, TableSchema
+from ..validation import check_model_output
 
 MM = 1e-3  # mm -> m, mm/s -> m/s, mN -> N
 
@@ -409,7 +410,7 @@ def predict_friction(model_file: str | os.PathLike | ModelFile, speeds_mm_s: Seq
         df = table.copy()
         table_where = str(df.attrs.get("source_path", "table"))
     bound = model.bind(df, where=table_where)
-    pred = np.asarray(bound.predict(), float)
+    pred = check_model_output(bound, None, "model-file values")  # NaN predictions are never written (exit 2)
     if "friction_mN" in df.columns:
         df = df.rename(columns={"friction_mN": "measured_friction_mN"})
     df["friction_mN"] = np.broadcast_to(pred, (len(df),)).astype(float)
