@@ -85,7 +85,10 @@ def _run(command, args: list[str], debug: bool) -> int:
         command.main(args=args, prog_name="capsule-cli", standalone_mode=True)
         return 0
     except SystemExit as exc:
-        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+        if code == 130:  # typer turns Ctrl-C into exit code 130
+            typer.echo("capsule-cli: interrupted", err=True)
+        return code
     except InputError as exc:
         typer.echo(f"capsule-cli: error: {_one_line(exc)}", err=True)
         return 2
