@@ -425,7 +425,7 @@ def numeric_column(path, col: str, raw: pd.Series) -> np.ndarray:
 
 def _short(v, n: int = 40) -> str:
     """Return ``repr(v)`` cut to ``n`` characters (a 400-digit cell stays one readable line)."""
-    text = repr(v)
+    text = str(float(v)) if isinstance(v, (float, np.floating)) else repr(v)
     return text if len(text) <= n else f"{text[:n - 12]}...({len(str(v))} characters)"
 
 
