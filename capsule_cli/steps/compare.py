@@ -72,7 +72,8 @@ def calibrate(bound: BoundModel, y: np.ndarray, rows: np.ndarray | None = None, 
     yy = y if rows is None else y[rows]
     start = bound.x0 if x0 is None else np.asarray(x0, float)
     fit = fit_least_squares(lambda th: bound.predict(th, rows), yy, start, bound.names, bound.bounds,
-                            n_starts=n_starts, seed=seed, tol=FIT_TOL, max_nfev=FIT_NFEV_PER_PARAM * len(start))
+                            n_starts=n_starts, seed=seed, tol=FIT_TOL, max_nfev=FIT_NFEV_PER_PARAM * len(start),
+                            model_rows=lambda th, idx: bound.predict(th, idx if rows is None else rows[idx]))
     return fit.values, fit
 
 
