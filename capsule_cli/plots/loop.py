@@ -25,13 +25,26 @@ def data_label(synthetic: bool) -> str:
     return "synthetic data" if synthetic else "data"
 
 
+#: most data markers drawn per panel; larger tables are thinned evenly (a million markers show nothing more)
+MAX_POINTS = 20_000
+
+
+def _thin(df: pd.DataFrame, label: str) -> tuple[pd.DataFrame, str]:
+    """Return every k-th row of ``df`` so that at most MAX_POINTS remain, and the label saying so."""
+    if len(df) <= MAX_POINTS:
+        return df, label
+    step = -(-len(df) // MAX_POINTS)
+    return df.iloc[::step], f"{label} (every {step}th of {len(df)} points shown)"
+
+
 def plot_fit(res: pd.DataFrame, curves: pd.DataFrame, main: str, resp: str, path: str | Path,
              title: str = "", noise_sd: float | None = None, extra: pd.DataFrame | None = None,
              extra_label: str = "", data_label: str = "data") -> Path:
     """Draw data and the calibrated model with its 95 % confidence band against ``main``."""
     obs, pred, _ = _cols(resp)
     fig, ax = figure(height_in=2.8)
-    ax.plot(res[main], res[obs], "o", ms=3, mfc="none", color="0.25", alpha=0.8, label=data_label)
+    shown, data_label = _thin(res, data_label)
+    ax.plot(shown[main], shown[obs], "o", ms=3, mfc="none", color="0.25", alpha=0.8, label=data_label)
     for i, (cid, c) in enumerate(curves.groupby("curve_id", sort=True)):
         col = OKABE_ITO[i % len(OKABE_ITO)]
         lab = str(c["curve"].iloc[0])
@@ -74,7 +87,8 @@ def plot_residuals(res: pd.DataFrame, covariates: list[str], resp: str, path: st
         if noise_sd and np.isfinite(noise_sd):
             ax.axhspan(-noise_sd, noise_sd, color=OKABE_ITO[2], alpha=0.15, lw=0, label="± noise SD")
         ax.axhline(0, color="0.3", lw=0.8)
-        ax.plot(x, r, "o", ms=2.5, mfc="none", color=OKABE_ITO[0], alpha=0.8)
+        step = -(-x.size // MAX_POINTS)  # thinned evenly above MAX_POINTS markers (the mean line uses all)
+        ax.plot(x[::step], r[::step], "o", ms=2.5, mfc="none", color=OKABE_ITO[0], alpha=0.8)
         u, inv = np.unique(x, return_inverse=True)
         if 3 <= u.size < x.size:
             ax.plot(u, np.bincount(inv, weights=r) / np.bincount(inv), "-", color=OKABE_ITO[1], lw=1,
