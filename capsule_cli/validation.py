@@ -9,7 +9,6 @@ model files: :mod:`capsule_cli.config`); this module holds what is checked aroun
   the plugin and the effect (a built-in that does so is a bug and propagates);
 * :func:`check_model_output` -- NaN/inf in a model's output at the start values or at the
   solution names the effect (or base model) that produced it and the first row;
-* :func:`check_finite_predictions` -- a prediction table with NaN is never written;
 * :func:`check_bounds` -- a model-file value outside its own bounds, for every command.
 
 Every function raises :class:`capsule_cli.errors.InputError` with one line.
@@ -105,7 +104,7 @@ def oserror_message(exc: OSError) -> str | None:
     if exc.errno not in user:
         return None
     where = exc.filename if exc.filename is not None else "(path)"
-    return f"{where}: cannot be written ({exc.strerror or type(exc).__name__})"
+    return f"{where}: {exc.strerror or type(exc).__name__} (check the path and its permissions)"
 
 
 # ---------------------------------------------------------------------------
@@ -169,21 +168,6 @@ def check_model_output(bound, theta: Sequence[float] | None, stage: str) -> np.n
     shown = ", ".join(f"{k}={v:g}" for k, v in bound.values(theta).items())
     raise InputError(f"{m.path}: {culprit} gives {bad[i]} at data row {i + 1} at the {stage}"
                      + (f" ({shown})" if shown else ""))
-
-
-def check_finite_values(values: Mapping[str, float], where: str) -> None:
-    """Raise InputError naming the first parameter whose value is NaN."""
-    for k, v in values.items():
-        if isinstance(v, float) and np.isnan(v):
-            raise InputError(f"{where}: params.{k}: NaN is not a value")
-
-
-def check_finite_predictions(y: np.ndarray, column: str, where: str) -> None:
-    """Raise InputError if a prediction column holds NaN/inf (the table would be meaningless)."""
-    y = np.asarray(y, float)
-    if not np.isfinite(y).all():
-        i = _first_bad(y)
-        raise InputError(f"{where}: the model gives {y[i]} for '{column}' at row {i + 1}; nothing written")
 
 
 def check_bounds(values: Mapping[str, float], bounds: Mapping[str, tuple[float, float]], where: str) -> None:
