@@ -26,7 +26,6 @@ from capsule_cli.errors import InputError
 from capsule_cli.tables import MEASUREMENT_KINDS, read_measurements
 from capsule_cli.validation import check_model_output
 
-pytestmark = pytest.mark.xdist_group("fuzz")  # one worker, in order: the outcome count sees every case
 SCALE = float(os.environ.get("CAPSULE_FUZZ_SCALE", "1"))
 N_TABLES = int(1200 * SCALE)
 N_MODELS = int(600 * SCALE)
@@ -53,9 +52,9 @@ def outcome(loader: str, fn):
     return result
 
 
-@pytest.fixture(scope="module")
-def fuzz_dir(tmp_path_factory):
-    return tmp_path_factory.mktemp("fuzz")
+@pytest.fixture
+def fuzz_dir(tmp_path):
+    return tmp_path
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -106,9 +105,14 @@ def csv_texts(draw):
     return text
 
 
+def test_fuzz_table_loader(fuzz_dir):
+    _table_cases(fuzz_dir)
+    check_counts("table loader", N_TABLES)
+
+
 @fuzz_settings(N_TABLES)
 @given(text=csv_texts(), kind=st.sampled_from([None, None, "friction", "pressure", "progression", "nope"]))
-def test_fuzz_table_loader(fuzz_dir, text, kind):
+def _table_cases(fuzz_dir, text, kind):
     path = fuzz_dir / "data.csv"
     path.write_text(text, encoding="utf-8", errors="surrogatepass")
     res = outcome("table loader", lambda: read_measurements(path, kind=kind))
@@ -190,9 +194,14 @@ TABLES = {"friction": {"speed_mm_s": [0.5, 2.0, 8.0, 12.0], "friction_mN": [10.0
           "relaxation": {"time_s": [0.0, 1.0, 10.0, 100.0], "pressure_kPa": [5.0, 4.0, 3.0, 2.5]}}
 
 
+def test_fuzz_model_file_loader(fuzz_dir):
+    _model_cases(fuzz_dir)
+    check_counts("model-file loader", N_MODELS)
+
+
 @fuzz_settings(N_MODELS)
 @given(doc=model_docs(), raw=st.one_of(st.none(), st.none(), st.none(), st.text(max_size=40)))
-def test_fuzz_model_file_loader(fuzz_dir, doc, raw):
+def _model_cases(fuzz_dir, doc, raw):
     import pandas as pd
 
     path = fuzz_dir / "model.yaml"
@@ -228,10 +237,15 @@ PREFIX = [""] * 12 + ["import not_a_module_xyz\n", "def broken(:\n", "raise Runt
           "x = 1 / 0\n"]
 
 
+def test_fuzz_plugin_loader(fuzz_dir):
+    _plugin_cases(fuzz_dir)
+    check_counts("plugin loader", N_PLUGINS)
+
+
 @fuzz_settings(N_PLUGINS)
 @given(body=st.sampled_from(BODIES), param=st.sampled_from(PARAMS), kind=st.sampled_from(KIND),
        covs=st.sampled_from(COVS), prefix=st.sampled_from(PREFIX), register=st.integers(0, 9))
-def test_fuzz_plugin_loader(fuzz_dir, body, param, kind, covs, prefix, register):
+def _plugin_cases(fuzz_dir, body, param, kind, covs, prefix, register):
     import pandas as pd
 
     name = f"fz{next(_counter)}"
@@ -266,12 +280,8 @@ def test_fuzz_plugin_loader(fuzz_dir, body, param, kind, covs, prefix, register)
         registry._LOADED_PLUGINS.update(loaded)
 
 
-def test_fuzz_explored_both_outcomes():
-    """The fuzz is not vacuous: each loader saw accepted and rejected cases (runs after the three above)."""
-    if not OUTCOMES:
-        pytest.skip("run together with the fuzz tests")
-    for loader in ("table loader", "model-file loader", "plugin loader"):
-        got = {what for (ld, what) in OUTCOMES if ld == loader}
-        if got:
-            assert got == {"accepted and valid", "rejected: InputError, one line"}, (loader, got)
-    assert sum(OUTCOMES.values()) >= N_TABLES + N_MODELS + N_PLUGINS
+def check_counts(loader: str, n: int) -> None:
+    """Every generated case ran, and both outcomes occurred (the fuzz is not vacuous)."""
+    got = {what: k for (ld, what), k in OUTCOMES.items() if ld == loader}
+    assert sum(got.values()) >= n, got
+    assert set(got) == {"accepted and valid", "rejected: InputError, one line"}, got
