@@ -7,6 +7,8 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 CORES ?= 2
+# an interrupted run (Ctrl-C, a killed job) resumes: outputs left incomplete are rebuilt
+RESUME := --rerun-incomplete
 # the rules call capsule-cli: the venv's bin comes first on PATH
 export PATH := $(CURDIR)/$(BIN):$(PATH)
 
@@ -22,14 +24,14 @@ $(STAMP): $(BIN)/python pyproject.toml requirements.lock
 setup: $(STAMP)
 
 study: $(STAMP)
-	$(BIN)/snakemake -s workflow/Snakefile --configfile configs/study.yaml --cores $(CORES) -p
+	$(BIN)/snakemake -s workflow/Snakefile --configfile configs/study.yaml --cores $(CORES) -p $(RESUME)
 
 report: $(STAMP)
 	$(BIN)/snakemake -s workflow/Snakefile --configfile configs/study.yaml --report results/report.html
 	@echo "report: results/report.html"
 
 smoke: $(STAMP)
-	$(BIN)/snakemake -s workflow/Snakefile --configfile configs/smoke.yaml --cores $(CORES) -p
+	$(BIN)/snakemake -s workflow/Snakefile --configfile configs/smoke.yaml --cores $(CORES) -p $(RESUME)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n $(CORES) --dist loadgroup

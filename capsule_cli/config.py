@@ -97,11 +97,27 @@ def _known_fields(model: type[BaseModel], loc: tuple) -> list[str]:
     return []
 
 
+#: tags pydantic puts into an error's location for the branch of a union (``float | FreeParam``)
+_UNION_TAGS = ("float", "FreeParam", "int", "str", "bool")
+
+
+def _relevant_errors(errors: list[dict]) -> list[dict]:
+    """Drop union-branch errors that cannot apply: a mapping given where a number or mapping is allowed
+    fails the number branch too ("Input should be a valid number"); the mapping branch says why."""
+    def number_branch_of_mapping(e):
+        loc = tuple(e.get("loc", ()))
+        return bool(loc) and loc[-1] in ("float", "int") and isinstance(e.get("input"), dict)
+
+    kept = [e for e in errors if not number_branch_of_mapping(e)]
+    return kept or list(errors)
+
+
 def format_validation_error(path: str | os.PathLike, exc: ValidationError, model: type[BaseModel]) -> str:
     """Return one line naming the file, the key path and what is wrong."""
-    errors = sorted(exc.errors(), key=lambda e: e.get("type") != "extra_forbidden")  # typos first
+    errors = _relevant_errors(exc.errors())
+    errors = sorted(errors, key=lambda e: e.get("type") != "extra_forbidden")  # typos first
     err = errors[0]
-    loc = tuple(err.get("loc", ()))
+    loc = tuple(p for p in err.get("loc", ()) if p not in _UNION_TAGS)
     where = ".".join(str(p) for p in loc) or "(top level)"
     if err.get("type") == "extra_forbidden":
         known = _known_fields(model, loc)
@@ -110,10 +126,12 @@ def format_validation_error(path: str | os.PathLike, exc: ValidationError, model
         if known and not hint:
             msg += f" (valid keys: {', '.join(known)})"
     else:
-        msg = err.get("msg", "invalid value")
-        if "input" in err and not isinstance(err["input"], (dict, list)):
+        msg = err.get("msg", "invalid value").removeprefix("Value error, ")
+        if "input" in err and not isinstance(err["input"], (dict, list)) and "NaN" not in msg:
             msg += f" (got {err['input']!r})"
-    more = len(exc.errors()) - 1
+        if msg.startswith(where + "."):  # the validator named the key itself
+            where, msg = msg.split(":", 1)[0], msg.split(":", 1)[1].strip()
+    more = len(errors) - 1
     return f"{path}: {where}: {msg}" + (f" [+{more} more]" if more > 0 else "")
 
 
@@ -196,11 +214,21 @@ class FreeParam(Strict):
     free: bool = Field(default=False, description="calibrate this parameter")
     bounds: tuple[float, float] | None = Field(default=None, description="[lower, upper] when free")
 
+    @field_validator("value")
+    @classmethod
+    def _not_nan(cls, v):
+        if math.isnan(v):
+            raise ValueError("NaN is not a value (give a number)")
+        return v
+
     @field_validator("bounds")
     @classmethod
     def _ordered(cls, v):
+        if v is not None and (math.isnan(v[0]) or math.isnan(v[1])):
+            raise ValueError(f"bounds must be numbers, got {list(v)}")
         if v is not None and not v[0] < v[1]:
-            raise ValueError(f"bounds must be [lower, upper] with lower < upper, got {list(v)}")
+            raise ValueError(f"bounds must be [lower, upper] with lower < upper, got {list(v)}"
+                             + (" (reversed?)" if v[0] > v[1] else ""))
         return v
 
 
@@ -214,6 +242,14 @@ class ModelFile(Strict):
                                                  description="fixed numbers or {value, free, bounds}")
     name: str | None = Field(default=None, description="a label for the ledger (default: file stem)")
     notes: str = Field(default="", description="free text")
+
+    @field_validator("params")
+    @classmethod
+    def _fixed_not_nan(cls, v):
+        for key, val in v.items():
+            if isinstance(val, float) and math.isnan(val):
+                raise ValueError(f"params.{key}: NaN is not a value (give a number)")
+        return v
 
 
 def load_model_file(path: str | os.PathLike) -> ModelFile:

@@ -37,7 +37,8 @@ PROVENANCE_KEY = b"capsule_cli"
 def atomic_path(path: str | os.PathLike):
     """Yield a temporary path beside ``path``; move it into place only on success.
 
-    A failed write leaves neither a half-written file nor the temporary one.
+    A failed write (an exception, Ctrl-C, SIGTERM) leaves neither a half-written file
+    nor the temporary one; the file gets the permissions the user's umask gives.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -45,11 +46,19 @@ def atomic_path(path: str | os.PathLike):
     os.close(fd)
     try:
         yield Path(tmp)
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; a file gets what the umask gives
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+def _umask() -> int:
+    """Return the process umask (read by setting and restoring it)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
@@ -309,7 +318,7 @@ def read_measurements(path: str | os.PathLike, kind: str | None = None) -> tuple
         _fail(p, f"cannot be read ({str(exc).splitlines()[0]})")
     if df.shape[0] == 0:
         _fail(p, "empty table (no rows)")
-    df.columns = [str(c).strip() for c in df.columns]
+    df.columns = check_column_names(p, df.columns)
     for col in df.columns:  # every non-label column must carry a known unit suffix
         if col in LABEL_COLUMNS or col in DIMENSIONLESS_COLUMNS or split_unit(col)[1] is not None:
             continue
@@ -352,28 +361,9 @@ def read_measurements(path: str | os.PathLike, kind: str | None = None) -> tuple
                  f"{', '.join(spec['required'])})")
 
     for col in numeric:
-        raw = df[col]
-        vals = pd.to_numeric(raw, errors="coerce")
-        bad = vals.isna() & raw.notna()
-        if bad.any():
-            i = int(np.argmax(bad.to_numpy()))
-            _fail(p, f"column '{col}' row {i + 1}: non-numeric value {raw.iloc[i]!r}")
-        if vals.isna().any():
-            i = int(np.argmax(vals.isna().to_numpy()))
-            _fail(p, f"column '{col}' row {i + 1}: missing value (NaN)")
-        if not np.isfinite(vals.to_numpy(dtype=float)).all():
-            i = int(np.argmax(~np.isfinite(vals.to_numpy(dtype=float))))
-            _fail(p, f"column '{col}' row {i + 1}: infinite value")
-        base = split_unit(col)[0]
-        if base in NONNEGATIVE and (vals < 0).any():
-            i = int(np.argmax((vals < 0).to_numpy()))
-            _fail(p, f"column '{col}' row {i + 1}: {NONNEGATIVE[base]} {vals.iloc[i]}")
-        df[col] = vals.astype(float)
+        df[col] = numeric_column(p, col, df[col])
     for col, target in rename.items():
         df[target] = convert(df[target].to_numpy(), col, target)
-    if "duty" in df.columns and ((df["duty"] <= 0) | (df["duty"] >= 1)).any():
-        i = int(np.argmax(((df["duty"] <= 0) | (df["duty"] >= 1)).to_numpy()))
-        _fail(p, f"column 'duty' row {i + 1}: duty must lie in (0, 1), got {df['duty'].iloc[i]}")
     for col in df.columns:
         if col in LABEL_COLUMNS and df[col].isna().any():
             i = int(np.argmax(df[col].isna().to_numpy()))
@@ -382,6 +372,73 @@ def read_measurements(path: str | os.PathLike, kind: str | None = None) -> tuple
     df.attrs["kind"] = kind
     df.attrs["provenance"] = _measurement_provenance(p)
     return df, kind
+
+
+def check_column_names(path, columns: Iterable) -> list[str]:
+    """Return the column names stripped of surrounding spaces; InputError on a duplicated name.
+
+    A CSV reader renames a repeated header ``x`` to ``x.1``; that, and names that only
+    differ by surrounding spaces, are reported as the duplicate they are.
+    """
+    names = [str(c).strip() for c in columns]
+    seen: dict[str, int] = {}
+    for j, name in enumerate(names):
+        base, dot, num = name.rpartition(".")
+        if dot and num.isdigit() and base in names[:j] and name not in names[:j]:
+            name = base  # pandas' mangled duplicate
+        if name in seen:
+            _fail(path, f"column '{name}' given twice (header columns {seen[name] + 1} and {j + 1})")
+        seen[name] = j
+    return names
+
+
+def _cell_float(v) -> float:
+    """Return one cell as a float (inf when too large, NaN when not a number)."""
+    if v is None or (isinstance(v, float) and np.isnan(v)):
+        return np.nan
+    try:
+        return float(str(v).strip())
+    except (ValueError, OverflowError):
+        return np.nan
+
+
+def numeric_column(path, col: str, raw: pd.Series) -> np.ndarray:
+    """Return a numeric measurement or design column as float64; InputError naming column and first bad row.
+
+    Rejects non-numeric cells, missing values, numbers a float64 cannot hold (overflow,
+    inf), values below zero where :data:`NONNEGATIVE` says so, and duty outside (0, 1).
+    """
+    raw = raw.reset_index(drop=True)
+    try:
+        vals = pd.to_numeric(raw, errors="coerce").to_numpy(dtype=float, na_value=np.nan)
+    except (OverflowError, TypeError, ValueError):  # e.g. a 400-digit integer: convert cell by cell
+        vals = np.array([_cell_float(v) for v in raw], dtype=float)
+    present = raw.notna().to_numpy()
+    bad = np.isnan(vals) & present
+    if bad.any():
+        i = int(np.argmax(bad))
+        _fail(path, f"column '{col}' row {i + 1}: non-numeric value {_short(raw.iloc[i])}")
+    if np.isnan(vals).any():
+        i = int(np.argmax(np.isnan(vals)))
+        _fail(path, f"column '{col}' row {i + 1}: missing value (NaN)")
+    if not np.isfinite(vals).all():
+        i = int(np.argmax(~np.isfinite(vals)))
+        _fail(path, f"column '{col}' row {i + 1}: {_short(raw.iloc[i])} is infinite or too large for a "
+                    "64-bit float")
+    base = split_unit(col)[0]
+    if base in NONNEGATIVE and (vals < 0).any():
+        i = int(np.argmax(vals < 0))
+        _fail(path, f"column '{col}' row {i + 1}: {NONNEGATIVE[base]} {vals[i]:g}")
+    if col == "duty" and ((vals <= 0) | (vals >= 1)).any():
+        i = int(np.argmax((vals <= 0) | (vals >= 1)))
+        _fail(path, f"column 'duty' row {i + 1}: duty must lie in (0, 1), got {vals[i]:g}")
+    return vals
+
+
+def _short(v, n: int = 40) -> str:
+    """Return ``repr(v)`` cut to ``n`` characters (a 400-digit cell stays one readable line)."""
+    text = str(float(v)) if isinstance(v, (float, np.floating)) else repr(v)
+    return text if len(text) <= n else f"{text[:n - 12]}...({len(str(v))} characters)"
 
 
 def _measurement_provenance(p: Path) -> dict:

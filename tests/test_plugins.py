@@ -46,6 +46,7 @@ def peristaltic_wave(y, x, p, ctx):
 
 @pytest.fixture
 def clean_registry():
+    registry._ensure_builtins()  # else an empty registry is saved and restored (built-ins lost for later tests)
     saved, loaded = dict(registry._EFFECTS), set(registry._LOADED_PLUGINS)
     yield
     registry._EFFECTS.clear()

@@ -1,9 +1,11 @@
-"""End-to-end: the Snakemake study on configs/smoke.yaml (the CI smoke run)."""
+"""End-to-end: the Snakemake study on configs/smoke.yaml (the CI smoke run), interrupted once and resumed."""
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pyarrow.parquet as pq
@@ -22,11 +24,32 @@ def test_smoke_workflow_builds_every_target(tmp_path):
     results = Path(os.environ.get("CAPSULE_SMOKE_RESULTS") or tmp_path / "results").resolve()
     # PATH as the user has it: the Snakefile itself must find the project's capsule-cli
     env = dict(os.environ)
+    # --rerun-incomplete as in the Makefile: a run interrupted by Ctrl-C resumes without the user's help
     cmd = [str(snakemake), "-s", str(REPO / "workflow" / "Snakefile"), "--configfile",
            str(REPO / "configs" / "smoke.yaml"), "--config", f"results_dir={results}", "--cores", "2",
-           "--directory", str(tmp_path), "--quiet", "all"]
+           "--directory", str(tmp_path), "--quiet", "--rerun-incomplete", "all"]
+    # first run: Ctrl-C (SIGINT to the whole process group, as a terminal sends it) once work is under way
+    first = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env,
+                             start_new_session=True)
+    deadline = time.monotonic() + 600
+    while first.poll() is None and time.monotonic() < deadline:
+        if results.is_dir() and sum(1 for p in results.rglob("*") if p.is_file()) >= 3:
+            break
+        time.sleep(0.5)
+    interrupted = first.poll() is None
+    if interrupted:
+        os.killpg(first.pid, signal.SIGINT)
+    try:
+        first.wait(timeout=300)
+    except subprocess.TimeoutExpired:
+        os.killpg(first.pid, signal.SIGKILL)
+        raise
+    if interrupted:
+        assert first.returncode != 0, "an interrupted run must not report success"
+    # second run: resumes and completes
     r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=900)
     assert r.returncode == 0, r.stderr[-4000:]
+    assert "IncompleteFilesException" not in r.stderr
     produced = sorted(p for p in results.rglob("*") if p.is_file())
     assert produced, "the smoke run produced nothing"
     # every Parquet table carries provenance and units

@@ -106,32 +106,65 @@ _register_all()
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Console entry point; returns (and exits with) the contract's exit code.
+    """Console entry point; returns (and exits with) the contract's exit code (section 5).
 
     Usage errors are reported by typer with exit code 2; :class:`InputError`
-    from a command becomes one line on stderr and exit code 2; anything else
-    is a bug: exit code 1, traceback only with ``--debug``.
+    from a command, and an OSError on a path the user gave (permissions, a
+    read-only or full disk), become one line on stderr and exit code 2; Ctrl-C
+    (SIGINT) is exit code 130 and SIGTERM 143, both raised as exceptions so
+    that atomic writes remove their temporary files; anything else is a bug:
+    exit code 1, traceback only with ``--debug``.
     """
+    from .common import install_signal_handlers, restore_signal_handlers
+
     args = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args
     command = typer.main.get_command(app)
+    previous = install_signal_handlers()
+    try:
+        code = _run(command, args, debug)
+    finally:
+        restore_signal_handlers(previous)
+    if argv is None:
+        sys.exit(code)
+    return code
+
+
+def _run(command, args: list[str], debug: bool) -> int:
+    """Run the click command and map every outcome to an exit code."""
+    from ..validation import oserror_message
+    from .common import Terminated
+
     try:
         command.main(args=args, prog_name="capsule-cli", standalone_mode=True)
-        code = 0
+        return 0
     except SystemExit as exc:
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+        if code == 130:  # typer turns Ctrl-C into exit code 130
+            typer.echo("capsule-cli: interrupted", err=True)
+        return code
     except InputError as exc:
-        typer.echo(f"capsule-cli: error: {exc}", err=True)
-        code = 2
+        typer.echo(f"capsule-cli: error: {_one_line(exc)}", err=True)
+        return 2
     except KeyboardInterrupt:
-        code = 130
-    except Exception as exc:  # a bug
+        typer.echo("capsule-cli: interrupted", err=True)
+        return 130
+    except Terminated:
+        typer.echo("capsule-cli: terminated", err=True)
+        return 143
+    except Exception as exc:  # a bug, unless an OSError on a user's path
+        msg = oserror_message(exc) if isinstance(exc, OSError) else None
+        if msg is not None and not debug:
+            typer.echo(f"capsule-cli: error: {msg}", err=True)
+            return 2
         if debug:
             traceback.print_exc()
         else:
             typer.echo(f"capsule-cli: internal error: {type(exc).__name__}: {exc} "
                        "(rerun with --debug for a traceback)", err=True)
-        code = 1
-    if argv is None:
-        sys.exit(code)
-    return code
+        return 1
+
+
+def _one_line(exc: Exception) -> str:
+    """Return an exception's message on one line (the contract's 'one line on stderr')."""
+    return " ".join(str(exc).split())

@@ -19,3 +19,55 @@ def ensure_suffix(path: Path, suffixes: tuple[str, ...], what: str) -> None:
 
     if path.suffix.lower() not in suffixes:
         raise InputError(f"{path}: {what} must end with {' or '.join(suffixes)}")
+
+
+# ---------------------------------------------------------------------------
+# signals (contract section 5: 130 on SIGINT, 143 on SIGTERM, nothing half-written)
+
+
+class Terminated(BaseException):
+    """Raised by the SIGTERM handler; a BaseException so that ``except Exception`` does not swallow it."""
+
+
+def _raise_terminated(signum, frame):  # noqa: ARG001
+    raise Terminated()
+
+
+def install_signal_handlers() -> dict:
+    """Make SIGINT raise KeyboardInterrupt and SIGTERM raise :class:`Terminated`; return the old handlers.
+
+    Raising (instead of dying) lets every ``atomic_path`` remove its temporary file.
+    Only possible in the main thread; elsewhere nothing is changed.
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    old = {signal.SIGINT: signal.getsignal(signal.SIGINT), signal.SIGTERM: signal.getsignal(signal.SIGTERM)}
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, _raise_terminated)
+    return old
+
+
+def restore_signal_handlers(old: dict) -> None:
+    """Put back the handlers returned by :func:`install_signal_handlers`."""
+    import signal
+
+    for sig, handler in old.items():
+        signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+
+
+def check_outputs(*, folder=None, file=None, ledger=None, option: str = "--out", **more) -> None:
+    """Check, before any work, that the command's outputs can be written (InputError naming the path).
+
+    ``folder`` / ``file``: the ``--out`` folder or file; ``ledger``: a ledger to append to;
+    ``more``: other output files by option name (``write_model=Path(...)`` -> ``--write-model``).
+    """
+    from ..validation import check_ledger, check_output_path
+
+    check_output_path(folder, option, folder=True)
+    check_output_path(file, option)
+    check_ledger(ledger)
+    for name, path in more.items():
+        check_output_path(path, "--" + name.replace("_", "-"))

@@ -11,7 +11,7 @@ from pathlib import Path
 import typer
 
 from ..errors import InputError
-from .common import QUIET, ensure_suffix, out_option
+from .common import QUIET, check_outputs, ensure_suffix, out_option
 
 
 class ModelChoice(str, Enum):
@@ -113,6 +113,7 @@ def register(app: typer.Typer) -> None:
         Defaults reproduce seed 003: Hertz a = 0.236 mm, P_avg 0.55 kPa, P_max 0.71 kPa
         (0.4 g); hoop 10.80 kPa at 4 mm/s and 10.92 kPa at 10 mm/s (R_i = 5 mm).
         """
+        check_outputs(file=out, profile_out=profile_out)  # before any work (exit 2 naming the path)
         import numpy as np
 
         from ..steps import contact as step
@@ -174,6 +175,7 @@ def register(app: typer.Typer) -> None:
         quiet: bool = QUIET,
     ):
         """Render the published contact pressures (with a citation per row) to a Parquet table."""
+        check_outputs(file=out)  # before any work (exit 2 naming the path)
         from ..steps import contact as step
         from ..tables import provenance, write_table
 
@@ -199,6 +201,7 @@ def register(app: typer.Typer) -> None:
         quiet: bool = QUIET,
     ):
         """Draw a contact-stage figure from tables (no physics is recomputed)."""
+        check_outputs(file=out)  # before any work (exit 2 naming the path)
         from ..plots import contact as plots
         from ..steps import contact as step
         from ..tables import read_table
@@ -250,6 +253,7 @@ def register(app: typer.Typer) -> None:
         Writes parameters with 95 % intervals, R², the CV table and the chosen order
         (fit.json), the fitted curves with 95 % bands (curve.parquet), residuals and a figure.
         """
+        check_outputs(folder=out)  # before any work (exit 2 naming the path)
         import numpy as np
         import pandas as pd
 

@@ -9,7 +9,7 @@ from typing import List, Optional
 import typer
 
 from ..errors import InputError
-from .common import QUIET
+from .common import QUIET, check_outputs
 
 FRICTION_HELP = ("shell friction (seed 000 eqs 21-23): coulomb (level --Pf-N), eq22 / eq23 (well-posed "
                  "speed laws, add --literal for the law as written), fixed (P_f = inf)")
@@ -33,7 +33,11 @@ def _setup(model, set_, waveform, f_Hz, Pd_N, duty, friction, Pf_N, literal, v_m
     from ..dynamics.model import Drive
     from ..steps.dynamics import make_friction, resolve_model
 
-    m, pf_set = resolve_model(model, _parse_set(set_))
+    from ..validation import check_model_file_bounds
+
+    overrides = _parse_set(set_)
+    check_model_file_bounds(model, overrides)  # the file's bounds hold here as in compare
+    m, pf_set = resolve_model(model, overrides)
     if friction == "coulomb" and Pf_N is None:
         Pf_N = pf_set
     fr = make_friction(friction, Pf_N, literal=literal, v_min_mm_s=v_min_mm_s, speed_unit=speed_unit,
@@ -95,6 +99,7 @@ def register(app: typer.Typer) -> None:
         quiet: bool = QUIET,
     ):
         """One vibro-impact run (seed 000 eqs 19-23): trajectory, exact events, per-period table, energy balance."""
+        check_outputs(folder=out)  # before any work (exit 2 naming the path)
         from ..progress import compile_notice
         from ..steps.dynamics import simulate_to_dir
 
@@ -151,6 +156,7 @@ def register(app: typer.Typer) -> None:
         quiet: bool = QUIET,
     ):
         """Bifurcation / progression sweep over one parameter (Poincare points, velocity, impacts, A_f)."""
+        check_outputs(folder=out)  # before any work (exit 2 naming the path)
         import numpy as np
 
         from ..progress import compile_notice, exit_on_interrupt, task
@@ -200,6 +206,7 @@ def register(app: typer.Typer) -> None:
         quiet: bool = QUIET,
     ):
         """Magnification factor maps A_f = max|F_i|/P_d over (P_d, f) (seed 000 eq 24, Fig 19)."""
+        check_outputs(file=out)  # before any work (exit 2 naming the path)
         import numpy as np
 
         from ..progress import compile_notice, exit_on_interrupt, task
@@ -270,6 +277,7 @@ def register(app: typer.Typer) -> None:
         quiet: bool = QUIET,
     ):
         """Benchmark (contract section 6): the engine against scipy solve_ivp with events, same runs."""
+        check_outputs(file=out)  # before any work (exit 2 naming the path)
         from .. import progress as PR
         from ..dynamics import bench as B
         from ..tables import _jsonable, write_json_atomic
@@ -309,6 +317,7 @@ def register(app: typer.Typer) -> None:
         quiet: bool = QUIET,
     ):
         """Figures and the landmark table of the dynamics study (tables in, figures out)."""
+        check_outputs(folder=out)  # before any work (exit 2 naming the path)
         from ..steps.dynamics import report
         paths = report(out, sweep or [], duty_sweep or [], magnify)
         if not quiet:

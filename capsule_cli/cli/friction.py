@@ -9,7 +9,7 @@ from typing import Optional
 import typer
 
 from ..errors import InputError
-from .common import QUIET, ensure_suffix
+from .common import QUIET, check_outputs, ensure_suffix
 
 friction_app = typer.Typer(
     name="friction",
@@ -63,6 +63,7 @@ def fit_cmd(
     quiet: bool = QUIET,
 ):
     """Fit a friction-speed law: parameters with 95 % intervals, R², AIC/BIC, band, residuals, figure."""
+    check_outputs(folder=out)  # before any work (exit 2 naming the path)
     from ..plots.friction import plot_fit
     from ..steps.friction import BAND_SCHEMA, RESIDUALS_SCHEMA, fit_friction_law
     from ..tables import provenance, read_measurements, write_json_atomic, write_table
@@ -113,6 +114,7 @@ def predict_cmd(
     quiet: bool = QUIET,
 ):
     """Predict friction (mN) over speeds or a table with a friction model file."""
+    check_outputs(file=out)  # before any work (exit 2 naming the path)
     from ..steps.friction import PREDICTION_SCHEMA, parse_grid, predict_friction
     from ..tables import provenance, read_measurements, write_table, write_text_atomic
 
@@ -122,6 +124,9 @@ def predict_cmd(
         raise InputError("--Ri-mm goes with --speeds-mm-s; with --data the table's Ri_mm column is used")
     if out is not None:
         ensure_suffix(out, (".parquet", ".csv"), "--out")
+    from ..validation import check_model_file_bounds
+
+    check_model_file_bounds(model)
     if data is not None:
         table, _ = read_measurements(data, kind="friction")
         pred = predict_friction(model, table=table)
@@ -158,6 +163,7 @@ def hoop_cmd(
     quiet: bool = QUIET,
 ):
     """Hoop-pressure friction components (N) over speed x R_i (seed 000 eqs 3-16, corrected)."""
+    check_outputs(file=out)  # before any work (exit 2 naming the path)
     from ..steps.friction import HOOP_SCHEMA, hoop_table, parse_grid
     from ..tables import provenance, write_table
 
@@ -195,6 +201,7 @@ def plot_speed_cmd(
     quiet: bool = QUIET,
 ):
     """Figure: friction vs speed, Case 1 and Case 4 (seed 000 Figs 9c and 13c)."""
+    check_outputs(file=out)  # before any work (exit 2 naming the path)
     import numpy as np
 
     from ..plots.friction import plot_friction_vs_speed
@@ -238,6 +245,7 @@ def plot_radius_cmd(
     quiet: bool = QUIET,
 ):
     """Figure: hoop-friction components vs intestine radius R_i (sensitivity to R_i)."""
+    check_outputs(file=out)  # before any work (exit 2 naming the path)
     from ..plots.friction import plot_hoop_vs_radius
     from ..steps.friction import read_friction_reference
     from ..tables import read_table

@@ -8,7 +8,7 @@ from typing import List, Optional
 import typer
 
 from ..errors import InputError
-from .common import QUIET
+from .common import QUIET, check_outputs
 
 PLUGINS = typer.Option(None, "--plugins", help="Python file(s) registering extra effects (repeat the option).")
 SEED = typer.Option(0, "--seed", help="Random seed (fold assignment, multi-start, noise).")
@@ -18,8 +18,10 @@ FOLDS = typer.Option(5, "--folds", help="Number of cross-validation folds (group
 def _load(model_path: Path, plugins: Optional[List[Path]]):
     from ..effects.model import build_model
     from ..effects.registry import load_plugins
+    from ..validation import check_model_file_bounds
 
     load_plugins(plugins or [])
+    check_model_file_bounds(model_path)
     return build_model(model_path)
 
 
@@ -53,6 +55,7 @@ def register(app: typer.Typer) -> None:
         quiet: bool = QUIET,
     ):
         """Synthetic measurements from a model file plus Gaussian noise, labelled synthetic in the metadata."""
+        check_outputs(file=out)  # before any work (exit 2 naming the path)
         from ..steps import synth as st
         from ..units import unit_label
         from ..tables import response_column
@@ -86,6 +89,7 @@ def register(app: typer.Typer) -> None:
         quiet: bool = QUIET,
     ):
         """Calibrate a model's free parameters on measurements; error metrics (held-out RMSE, noise), figures, ledger row."""
+        check_outputs(folder=out, ledger=ledger)  # before any work (exit 2 naming the path)
         from ..steps.compare import run_compare
 
         m = _load(model, plugins)
@@ -111,6 +115,7 @@ def register(app: typer.Typer) -> None:
         quiet: bool = QUIET,
     ):
         """Where the model fails and which physical effect is missing, ranked by held-out error and BIC."""
+        check_outputs(folder=out, write_model=write_model)  # before any work (exit 2 naming the path)
         from ..steps.diagnose import run_diagnose
 
         m = _load(model, plugins)
@@ -213,6 +218,7 @@ def register(app: typer.Typer) -> None:
         title: str = typer.Option("", "--title", help="Figure title."),
     ):
         """Plot the held-out error per revision (± SE) with the noise level as a band: the error falling."""
+        check_outputs(file=out)  # before any work (exit 2 naming the path)
         from ..plots.loop import plot_ledger
         from ..steps.ledger import read_ledger, select_history
         from .common import ensure_suffix

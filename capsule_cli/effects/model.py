@@ -22,6 +22,7 @@ from ..config import FreeParam, ModelFile, config_hash, load_model_file
 from ..errors import InputError
 from ..tables import LABEL_COLUMNS, response_column
 from ..units import split_unit, to_si, unit_factor
+from ..validation import call_effect
 from .constants import capsule_constants
 from .registry import BaseModel, Effect, Param, base_name, get_base, get_effect, si_factor
 
@@ -295,10 +296,12 @@ class BoundModel:
         xx = x if x is not None else (self.x if rows is None else {k: v[rows] for k, v in self.x.items()})
         pb = self._params_si(vals, "base", rows)
         ctx = {**self._consts, **pb}
-        y = np.asarray(self.model.base.predict(xx, pb, ctx), float)
+        n = next((len(v) for v in xx.values() if np.ndim(v) == 1), self.n)  # rows evaluated
+        base = self.model.base
+        y = call_effect(base, base.predict, n, xx, pb, ctx)
         effs = self.model.effects if upto is None else self.model.effects[:upto]
-        for e in effs:
-            y = np.asarray(e.apply(y, xx, self._params_si(vals, e.name, rows), ctx), float)
+        for e in effs:  # a plugin that raises or returns a wrong shape: exit 2 naming it (validation layer)
+            y = call_effect(e, e.apply, n, y, xx, self._params_si(vals, e.name, rows), ctx)
         return y
 
     def predict(self, theta=None, rows: np.ndarray | None = None) -> np.ndarray:

@@ -29,6 +29,10 @@ def _fmt_param(name: str, rec: dict) -> str:
     return f"{name} = {rec['value']:.4g} [{lo:.3g}, {hi:.3g}]"
 
 
+#: most data points drawn by :func:`plot_fit` (larger tables are thinned evenly; the fit uses all rows)
+MAX_POINTS = 20_000
+
+
 def plot_fit(residuals: pd.DataFrame, band: pd.DataFrame, summary: dict, path: str | Path,
              data_label: str = "data") -> Path:
     """Draw the data, the fitted curve with its 95 % confidence and prediction bands, and residuals."""
@@ -39,6 +43,11 @@ def plot_fit(residuals: pd.DataFrame, band: pd.DataFrame, summary: dict, path: s
     ax.fill_between(band["speed_mm_s"], band["ci_low_mN"], band["ci_high_mN"], color=FIT_COLOR, alpha=0.30,
                     lw=0, label="95 % confidence band")
     ax.plot(band["speed_mm_s"], band["friction_mN"], color=FIT_COLOR, label=f"fit: {summary['formula']}")
+    n_all = len(residuals)
+    if n_all > MAX_POINTS:  # a million markers take seconds to draw and show nothing more
+        step = -(-n_all // MAX_POINTS)
+        residuals = residuals.iloc[::step]
+        data_label = f"{data_label} (every {step}th of {n_all} points shown)"
     ax.plot(residuals["speed_mm_s"], residuals["friction_mN"], "o", ms=3, color="0.35", mfc="none",
             label=data_label)
     ax.set_ylabel(label("friction", "mN"))

@@ -90,6 +90,18 @@ _ORIGIN_MARKER = {"FE": dict(marker="^", mfc="none"), "experiment": dict(marker=
                   "synthetic": dict(marker="o", mfc="none"), None: dict(marker="o", mfc="none")}
 
 
+#: most data markers drawn per panel; larger tables are thinned evenly (a million markers show nothing more)
+MAX_POINTS = 20_000
+
+
+def _thin(df: pd.DataFrame, label: str) -> tuple[pd.DataFrame, str]:
+    """Return every k-th row of ``df`` so that at most MAX_POINTS remain, and the label saying so."""
+    if len(df) <= MAX_POINTS:
+        return df, label
+    step = -(-len(df) // MAX_POINTS)
+    return df.iloc[::step], f"{label} (every {step}th of {len(df)} points shown)"
+
+
 def plot_fit(res: pd.DataFrame, curves: pd.DataFrame, main: str, resp: str, path: str | Path,
              title: str = "", noise_sd: float | None = None, extra: pd.DataFrame | None = None,
              extra_label: str = "", data_label: str = "data") -> Path:
@@ -101,6 +113,7 @@ def plot_fit(res: pd.DataFrame, curves: pd.DataFrame, main: str, resp: str, path
     synthetic, published FE or published experiment (from a ``source`` column).
     """
     obs, pred, _ = _cols(resp)
+    res, data_label = _thin(res, data_label)
     synthetic = data_label.startswith("synthetic")
     origin = origin_of(res["source"], synthetic) if "source" in res.columns else None
     labels = curves.drop_duplicates("curve_id").sort_values("curve_id")
@@ -199,7 +212,8 @@ def plot_residuals(res: pd.DataFrame, covariates: list[str], resp: str, path: st
         if noise_sd and np.isfinite(noise_sd):
             ax.axhspan(-noise_sd, noise_sd, color=OKABE_ITO[2], alpha=0.15, lw=0, label="± noise SD")
         ax.axhline(0, color="0.3", lw=0.8)
-        ax.plot(x, r, "o", ms=2.5, mfc="none", color=OKABE_ITO[0], alpha=0.8)
+        step = -(-x.size // MAX_POINTS)  # thinned evenly above MAX_POINTS markers (the mean line uses all)
+        ax.plot(x[::step], r[::step], "o", ms=2.5, mfc="none", color=OKABE_ITO[0], alpha=0.8)
         u, inv = np.unique(x, return_inverse=True)
         if 3 <= u.size < x.size:
             ax.plot(u, np.bincount(inv, weights=r) / np.bincount(inv), "-", color=OKABE_ITO[1], lw=1,

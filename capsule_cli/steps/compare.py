@@ -19,6 +19,7 @@ from ..effects.model import BoundModel, Model
 from ..fitting import FitResult, fit_least_squares, information_criteria, prediction_band
 from ..tables import (Column, TableSchema, is_synthetic, provenance, response_column, write_json_atomic, write_table)
 from ..units import split_unit, unit_label
+from ..validation import check_model_output
 from . import crossval
 from .residual_tests import noise_estimate, numeric_covariates
 
@@ -71,7 +72,8 @@ def calibrate(bound: BoundModel, y: np.ndarray, rows: np.ndarray | None = None, 
     yy = y if rows is None else y[rows]
     start = bound.x0 if x0 is None else np.asarray(x0, float)
     fit = fit_least_squares(lambda th: bound.predict(th, rows), yy, start, bound.names, bound.bounds,
-                            n_starts=n_starts, seed=seed, tol=FIT_TOL, max_nfev=FIT_NFEV_PER_PARAM * len(start))
+                            n_starts=n_starts, seed=seed, tol=FIT_TOL, max_nfev=FIT_NFEV_PER_PARAM * len(start),
+                            model_rows=lambda th, idx: bound.predict(th, idx if rows is None else rows[idx]))
     return fit.values, fit
 
 
@@ -238,10 +240,12 @@ def run_compare(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_d
 
     out = Path(out_dir)
     bound = model.bind(df, where=str(data_path))
+    check_model_output(bound, None, "start values")  # NaN from the model: exit 2 naming the effect
     resp = bound.response
     groups, how = crossval.cv_groups(df, resp)
     folds = crossval.assign_folds(groups, k_folds, seed)
     ev = evaluate(bound, folds, groups, seed=seed)
+    check_model_output(bound, ev.theta, "solution")
     noise = noise_estimate(df, resp)
     dh = data_hash(data_path)
     met = metrics(ev, noise, data_path, dh, k_folds, how)

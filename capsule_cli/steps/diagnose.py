@@ -40,6 +40,7 @@ from ..effects.registry import Effect, base_name, effects as all_effects, si_fac
 from ..tables import (is_synthetic, provenance, response_column, write_json_atomic, write_table,
                       write_text_atomic)
 from ..units import split_unit, unit_label
+from ..validation import check_model_output
 from . import crossval
 from .compare import (CURVE_SCHEMA, Evaluation, data_hash, evaluate, fit_curves, main_covariate, param_table,
                       residual_frame, residual_schema)
@@ -167,9 +168,11 @@ def run_diagnose(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_
     unit = unit_label(resp)
     rbase = split_unit(resp)[0]
     bound = model.bind(df, where=str(data_path))
+    check_model_output(bound, None, "start values")  # validation layer: NaN names the effect (exit 2)
     groups, how = crossval.cv_groups(df, resp)
     folds = crossval.assign_folds(groups, k_folds, seed)
     base = evaluate(bound, folds, groups, seed=seed)
+    check_model_output(bound, base.theta, "solution")
     noise = noise_estimate(df, resp)
     sigma = noise["sd"]
     noise_txt = (f"noise is {_fmt(sigma, unit)}" if noise.get("reliable", True)

@@ -214,6 +214,32 @@ def gasser_sd(x: np.ndarray, y: np.ndarray) -> float:
     return float(np.sqrt(np.mean(e * e / c2)))
 
 
+def _segment_gasser_var(x: np.ndarray, y: np.ndarray, seg: np.ndarray) -> float | None:
+    """Return the pooled Gasser variance over contiguous segments ``seg`` of >= 5 rows (None if none).
+
+    Vectorised form of :func:`gasser_sd` per segment, squared and averaged with weights
+    (rows - 2): the triples that straddle two segments are left out; O(rows), no per-row Python.
+    """
+    if y.size < 5:
+        return None
+    size = np.bincount(seg)
+    mid = seg[1:-1]
+    ok = (seg[:-2] == seg[2:]) & (size[mid] >= 5)
+    if not ok.any():
+        return None
+    x0, x1, x2 = x[:-2], x[1:-1], x[2:]
+    span = x2 - x0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a = np.where(span > 0, (x2 - x1) / span, 0.5)
+    b = 1.0 - a
+    e = a * y[:-2] + b * y[2:] - y[1:-1]
+    term = e * e / (a * a + b * b + 1.0)
+    sums = np.bincount(mid[ok], weights=term[ok], minlength=size.size)
+    cnt = np.bincount(mid[ok], minlength=size.size)
+    use = (size >= 5) & (cnt > 0)
+    return float(np.average(sums[use] / cnt[use], weights=size[use] - 2))
+
+
 def noise_estimate(df: pd.DataFrame, response: str) -> dict:
     """Return {sd, se, method, dof} of the measurement noise (response unit)."""
     y = df[response].to_numpy(dtype=float)
@@ -240,19 +266,12 @@ def noise_estimate(df: pd.DataFrame, response: str) -> dict:
         order = d.sort_values(labels + others + [c], kind="stable").index.to_numpy()
         x = d[c].to_numpy(dtype=float)[order]
         yy = y[order]
-        key = d.loc[order, labels + others].astype(str).agg("|".join, axis=1).to_numpy() if labels + others else None
-        sds, ws = [], []
-        if key is None:
-            segs = [np.arange(y.size)]
-        else:
-            segs = [np.flatnonzero(key == k) for k in pd.unique(key)]
-        for s in segs:
-            if s.size >= 5:
-                sds.append(gasser_sd(x[s], yy[s]) ** 2)
-                ws.append(s.size - 2)
-        if not ws:
+        seg = (d.loc[order, labels + others].groupby(labels + others, sort=False, dropna=False).ngroup().to_numpy()
+               if labels + others else np.zeros(y.size, dtype=np.int64))
+        var = _segment_gasser_var(x, yy, seg)
+        if var is None:
             continue
-        sd = math.sqrt(float(np.average(sds, weights=ws)))
+        sd = math.sqrt(var)
         if not np.isfinite(best) or sd < best:
             best, how = sd, c
     if not np.isfinite(best):

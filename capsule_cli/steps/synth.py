@@ -16,7 +16,8 @@ import pandas as pd
 from ..config import config_hash, configs_dir
 from ..effects.model import Model
 from ..errors import InputError
-from ..tables import LABEL_COLUMNS, provenance, response_column, user_path, write_measurements
+from ..tables import (LABEL_COLUMNS, check_column_names, numeric_column, provenance, response_column,
+                      user_path, write_measurements)
 from ..units import split_unit
 
 #: default design per kind (configs/designs/)
@@ -32,7 +33,11 @@ def default_design(kind: str) -> Path:
 
 
 def read_design(path: str | Path, kind: str) -> pd.DataFrame:
-    """Return a validated design table: covariate columns with unit suffixes (+ labels), no response."""
+    """Return a validated design table: covariate columns with unit suffixes (+ labels), no response.
+
+    Numeric columns pass the checks of measurement tables (:func:`capsule_cli.tables.numeric_column`),
+    so ``synth`` never writes data that ``compare`` would reject.
+    """
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{p}: design file not found")
@@ -42,6 +47,7 @@ def read_design(path: str | Path, kind: str) -> pd.DataFrame:
         raise InputError(f"{p}: cannot be read ({str(exc).splitlines()[0]})") from None
     if df.empty:
         raise InputError(f"{p}: empty design (no rows)")
+    df.columns = check_column_names(p, df.columns)
     resp = response_column(kind)
     if resp in df.columns:
         df = df.drop(columns=[resp])
@@ -53,12 +59,7 @@ def read_design(path: str | Path, kind: str) -> pd.DataFrame:
             continue
         if split_unit(col)[1] is None and col not in ("duty",):
             raise InputError(f"{p}: column '{col}': no unit suffix (e.g. speed_mm_s, position_mm, temperature_C)")
-        vals = pd.to_numeric(df[col], errors="coerce")
-        bad = vals.isna() | ~np.isfinite(vals.to_numpy(dtype=float, na_value=np.nan))
-        if bad.any():
-            i = int(np.argmax(bad.to_numpy()))
-            raise InputError(f"{p}: column '{col}' row {i + 1}: not a finite number ({df[col].iloc[i]!r})")
-        df[col] = vals.astype(float)
+        df[col] = numeric_column(p, col, df[col])  # validated like measurements (negative speed, duty ...)
     return df
 
 

@@ -1,0 +1,276 @@
+"""Fail well (issue 11, contract section 5): every bad input of the issue ends with one line and exit 2,
+naming the real cause, and nothing is written; interrupts end with 130/143 within seconds, leaving
+no partial file; written files get the permissions of the user's umask."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from capsule_cli.cli import main
+from capsule_cli.effects import registry
+from capsule_cli.tables import atomic_path, write_text_atomic
+
+REPO = Path(__file__).resolve().parents[1]
+COULOMB = REPO / "configs" / "models" / "coulomb.yaml"
+
+
+@pytest.fixture
+def clean_registry():
+    registry._ensure_builtins()
+    saved, loaded = dict(registry._EFFECTS), set(registry._LOADED_PLUGINS)
+    yield
+    registry._EFFECTS.clear()
+    registry._EFFECTS.update(saved)
+    registry._LOADED_PLUGINS.clear()
+    registry._LOADED_PLUGINS.update(loaded)
+
+
+def run(capsys, *args) -> tuple[int, str]:
+    """Run the CLI in-process; return (exit code, stderr) and check the contract's one line."""
+    code = main([str(a) for a in args])
+    err = capsys.readouterr().err
+    if code == 2:
+        lines = [ln for ln in err.splitlines() if ln.strip() and "Warning" not in ln]
+        assert len(lines) == 1 and lines[0].startswith("capsule-cli: error: "), err
+    return code, err
+
+
+def friction_csv(path: Path, n: int = 12) -> Path:
+    v = np.linspace(0.5, 12.0, n)
+    pd.DataFrame({"speed_mm_s": v, "friction_mN": 8.8 * v ** 0.25 + 2.5}).to_csv(path, index=False)
+    return path
+
+
+def files_under(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.rglob("*") if p.is_file())
+
+
+# ---------------------------------------------------------------------------
+# the table loader
+
+
+@pytest.mark.parametrize("text, column, row", [
+    ("speed_mm_s,friction_mN,speed_mm_s \n1,2,3\n2,3,4\n", "speed_mm_s", None),  # collide once stripped
+    ("speed_mm_s,friction_mN,speed_mm_s\n1,2,3\n2,3,4\n", "speed_mm_s", None),  # plain duplicate
+    ("speed_mm_s,friction_mN\n1,2\n2,3\n3," + "9" * 400 + "\n", "friction_mN", 3),  # 400 digits
+    ("speed_mm_s,friction_mN\n1,2\n2,1e400\n", "friction_mN", 2),
+])
+def test_bad_tables_exit_2_naming_column_and_row(tmp_path, capsys, text, column, row):
+    data = tmp_path / "data.csv"
+    data.write_text(text)
+    out = tmp_path / "fit"
+    code, err = run(capsys, "friction", "fit", "--data", data, "--out", out)
+    assert code == 2
+    assert f"column '{column}'" in err
+    assert ("given twice" in err) if row is None else (f"row {row}:" in err and "too large" in err)
+    assert "unknown unit suffix" not in err
+    assert len(err) < 300  # a 400-digit cell is shortened
+    assert not out.exists()
+
+
+# ---------------------------------------------------------------------------
+# model files: NaN, reversed bounds, bounds in every command
+
+
+def test_fixed_nan_parameter_is_exit_2_and_no_ledger_row(tmp_path, capsys):
+    model = tmp_path / "m.yaml"
+    model.write_text("kind: friction\nbase: coulomb\nparams:\n  mu: .nan\n")
+    ledger = tmp_path / "ledger.parquet"
+    code, err = run(capsys, "compare", "--model", model, "--data", friction_csv(tmp_path / "d.csv"),
+                    "--out", tmp_path / "cmp", "--ledger", ledger)
+    assert code == 2 and "params.mu: NaN is not a value" in err
+    assert not ledger.exists() and not (tmp_path / "cmp").exists()
+
+
+def test_friction_predict_never_writes_nan(tmp_path, capsys):
+    model = tmp_path / "m.yaml"
+    model.write_text("kind: friction\nbase: coulomb\nparams:\n  mu: {value: .nan}\n")
+    out = tmp_path / "pred.parquet"
+    code, err = run(capsys, "friction", "predict", "--model", model, "--speeds-mm-s", "1,2", "--out", out)
+    assert code == 2 and "params.mu.value: NaN" in err and not out.exists()
+
+
+def test_reversed_bounds_say_so(tmp_path, capsys):
+    model = tmp_path / "m.yaml"
+    model.write_text("kind: friction\nbase: coulomb\nparams:\n  mu: {value: 0.2, free: true, bounds: [1.0, 0.0]}\n")
+    code, err = run(capsys, "compare", "--model", model, "--data", friction_csv(tmp_path / "d.csv"),
+                    "--out", tmp_path / "cmp", "--ledger", tmp_path / "l.parquet")
+    assert code == 2 and "params.mu.bounds" in err and "lower < upper" in err and "[1.0, 0.0]" in err
+    assert "valid number" not in err
+
+
+def test_simulate_holds_the_model_file_bounds(tmp_path, capsys):
+    model = tmp_path / "dyn.yaml"
+    model.write_text("kind: progression\nbase: one_sided\nparams:\n  Pf_N: {value: 0.9, free: true, bounds: [0.0, 0.5]}\n")
+    out = tmp_path / "sim"
+    code, err = run(capsys, "simulate", "--model", model, "--out", out)
+    assert code == 2 and "params.Pf_N: value 0.9 outside its bounds [0, 0.5]" in err
+    assert not out.exists()
+    # an override through --set is held to the same bounds
+    model.write_text("kind: progression\nbase: one_sided\nparams:\n  Pf_N: {value: 0.1, free: true, bounds: [0.0, 0.5]}\n")
+    code, err = run(capsys, "sweep", "--model", model, "--set", "Pf_N=-1", "--start", "10", "--stop", "20",
+                    "--out", out)
+    assert code == 2 and "params.Pf_N: value -1 outside" in err
+
+
+# ---------------------------------------------------------------------------
+# plugins at run time
+
+
+PLUGIN = '''
+import numpy as np
+from capsule_cli.effects import Param, register_effect
+
+@register_effect(name="{name}", kind="friction", params=(Param("k_mN", start=1.0, bounds=(0.0, 5.0), off=0.0),),
+                 description="test effect", source="test")
+def {name}(y, x, p, ctx):
+    {body}
+'''
+
+
+@pytest.mark.parametrize("name, body, what", [
+    ("gives_nan", "return y * np.nan", "gives nan at data row 1 at the start values"),
+    ("raises", "raise ZeroDivisionError('division by zero')", "raised ZeroDivisionError: division by zero"),
+    ("short", "return y[:2]", "returned shape (2,), expected (12,)"),
+    ("text", "return 'abc'", "returned str, not an array of numbers"),
+])
+def test_plugin_failing_at_run_time_is_exit_2_naming_plugin_and_effect(tmp_path, capsys, clean_registry,
+                                                                       name, body, what):
+    plug = tmp_path / f"plug_{name}.py"
+    plug.write_text(PLUGIN.format(name=name, body=body))
+    model = tmp_path / "m.yaml"
+    model.write_text(f"kind: friction\nbase: coulomb\neffects: [{name}]\n"
+                     "params:\n  mu: {value: 0.2, free: true, bounds: [0, 1]}\n")
+    ledger = tmp_path / "ledger.parquet"
+    code, err = run(capsys, "compare", "--model", model, "--data", friction_csv(tmp_path / "d.csv"),
+                    "--out", tmp_path / "cmp", "--ledger", ledger, "--plugins", plug)
+    assert code == 2, err
+    assert f"plugin plug_{name}.py" in err and f"effect '{name}'" in err and what in err
+    assert not ledger.exists()
+
+
+# ---------------------------------------------------------------------------
+# synth designs are validated like measurements
+
+
+def test_synth_design_with_negative_speed_is_rejected(tmp_path, capsys):
+    design = tmp_path / "design.csv"
+    design.write_text("speed_mm_s\n1\n-2\n")
+    out = tmp_path / "d_synthetic.csv"
+    code, err = run(capsys, "synth", "--model", COULOMB, "--design", design, "--noise-sd", "0.1", "--out", out)
+    assert code == 2 and "column 'speed_mm_s' row 2: negative speed -2" in err
+    assert not out.exists()
+
+
+# ---------------------------------------------------------------------------
+# output paths: checked before any work
+
+
+def test_out_and_ledger_that_cannot_be_written_are_exit_2_before_work(tmp_path, capsys):
+    data = friction_csv(tmp_path / "d.csv")
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    code, err = run(capsys, "compare", "--model", COULOMB, "--data", data, "--out", tmp_path / "cmp",
+                    "--ledger", blocker / "ledger.parquet")
+    assert code == 2 and "--ledger" in err and "a_file is not a folder" in err
+    assert not (tmp_path / "cmp").exists()  # nothing is written when the ledger cannot be
+    code, err = run(capsys, "compare", "--model", COULOMB, "--data", data, "--out", blocker / "cmp",
+                    "--ledger", tmp_path / "l.parquet")
+    assert code == 2 and "--out" in err and "a_file" in err
+    code, err = run(capsys, "compare", "--model", COULOMB, "--data", data, "--out", blocker,
+                    "--ledger", tmp_path / "l.parquet")
+    assert code == 2 and "exists and is not a folder" in err
+    assert not (tmp_path / "l.parquet").exists()
+    code, err = run(capsys, "friction", "fit", "--data", data, "--out", tmp_path / ("x" * 300))
+    assert code == 2 and "longer than 255 bytes" in err
+
+
+def test_an_existing_non_ledger_is_rejected_before_work(tmp_path, capsys):
+    data = friction_csv(tmp_path / "d.csv")
+    bad = tmp_path / "ledger.parquet"
+    bad.write_text("not parquet")
+    code, err = run(capsys, "compare", "--model", COULOMB, "--data", data, "--out", tmp_path / "cmp",
+                    "--ledger", bad)
+    assert code == 2 and "ledger.parquet" in err
+    assert not (tmp_path / "cmp").exists() and bad.read_text() == "not parquet"
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root may write anywhere: permission bits do not apply")
+def test_unwritable_folder_is_exit_2(tmp_path, capsys):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    try:
+        code, err = run(capsys, "friction", "fit", "--data", friction_csv(tmp_path / "d.csv"), "--out", ro / "fit")
+        assert code == 2 and "permission denied" in err
+    finally:
+        ro.chmod(0o700)
+
+
+# ---------------------------------------------------------------------------
+# permissions from the umask
+
+
+@pytest.mark.parametrize("mask, mode", [(0o022, 0o644), (0o027, 0o640), (0o002, 0o664)])
+def test_atomic_files_get_the_umask_permissions(tmp_path, mask, mode):
+    old = os.umask(mask)
+    try:
+        p = write_text_atomic(tmp_path / "a.txt", "x")
+        with atomic_path(tmp_path / "b.bin") as tmp:
+            Path(tmp).write_bytes(b"y")
+    finally:
+        os.umask(old)
+    assert (p.stat().st_mode & 0o777) == mode
+    assert ((tmp_path / "b.bin").stat().st_mode & 0o777) == mode
+
+
+def test_an_interrupted_atomic_write_leaves_nothing(tmp_path):
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_path(tmp_path / "t.parquet") as tmp:
+            Path(tmp).write_bytes(b"half")
+            raise KeyboardInterrupt
+    assert list(tmp_path.iterdir()) == []
+
+
+# ---------------------------------------------------------------------------
+# interrupts: SIGINT -> 130, SIGTERM -> 143, within seconds, nothing half-written
+
+
+@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_signal_stops_a_long_fit_at_once(tmp_path, sig, code):
+    data = tmp_path / "big.csv"
+    rng = np.random.default_rng(0)
+    v = rng.uniform(0.1, 50.0, 60_000)
+    pd.DataFrame({"speed_mm_s": v, "friction_mN": 30 * v ** 0.25 + 10 + rng.normal(0, 1, v.size)}).to_csv(
+        data, index=False)
+    out = tmp_path / "fit"
+    exe = Path(sys.executable).with_name("capsule-cli")
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "capsule_cli"]
+    # thousands of starts: minutes of pure-Python/numpy work unless the signal stops it
+    proc = subprocess.Popen([*cmd, "friction", "fit", "--data", str(data), "--out", str(out), "--n-starts",
+                             "100000", "-q"], stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": str(REPO)}, cwd=tmp_path)
+    time.sleep(6.0)  # imports and reading done on a loaded machine; now fitting
+    assert proc.poll() is None, proc.stderr.read()
+    t0 = time.monotonic()
+    proc.send_signal(sig)
+    try:
+        rc = proc.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        raise
+    stop_s = time.monotonic() - t0
+    err = proc.stderr.read()
+    assert rc == code, err
+    assert stop_s < 8.0, f"took {stop_s:.1f} s to stop"  # generous: the machine may be loaded
+    assert len(err.strip().splitlines()) == 1 and ("interrupted" in err or "terminated" in err)
+    assert not out.exists() or files_under(out) == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["big.csv"]  # no temporary files
