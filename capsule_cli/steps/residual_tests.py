@@ -36,6 +36,10 @@ ORDERED = ("time", "position")
 GROUP_LABELS = ("trial", "run")
 #: labels that annotate a row without changing what was measured
 NOTE_LABELS = ("source", "note", "id", "label")
+#: family false-alarm rate of the outlier flags over all rows of a table
+OUTLIER_ALPHA = 0.01
+#: significance of serial correlation of the noise along time/position
+CORRELATION_ALPHA = 0.01
 
 
 def _base(col: str) -> str:
@@ -110,11 +114,13 @@ def runs_test(x, r) -> tuple[float, float]:
     return float(z), float(stats.norm.cdf(z))
 
 
-def lomb_scargle(x, r, n_freq_max: int = 4000) -> tuple[float, float, float]:
+def lomb_scargle(x, r, n_freq_max: int = 4000, rho: float = 0.0) -> tuple[float, float, float]:
     """Return (peak power [0-1], false-alarm p, period [unit of x]) of the detrended residuals.
 
     Frequencies from 2 cycles over the span up to the mean-spacing Nyquist limit,
-    oversampled 5 times.
+    oversampled 5 times. With ``rho`` > 0 (AR(1) noise of lag-1 correlation rho at the mean
+    spacing) each frequency's power is divided by the red-noise spectrum
+    (1 - rho^2) / (1 - 2 rho cos(2 pi f dx) + rho^2) before the false-alarm probability.
     """
     x = np.asarray(x, float)
     r = np.asarray(r, float)
@@ -140,7 +146,11 @@ def lomb_scargle(x, r, n_freq_max: int = 4000) -> tuple[float, float, float]:
     c, s = np.cos(arg), np.sin(arg)
     with np.errstate(invalid="ignore", divide="ignore"):
         P = 0.5 * ((c @ y) ** 2 / np.sum(c * c, axis=1) + (s @ y) ** 2 / np.sum(s * s, axis=1))
-    p = np.clip(2.0 * P / yy, 0.0, 1.0)
+    p = 2.0 * P / yy
+    if rho > 0:
+        red = (1 - rho * rho) / (1 - 2 * rho * np.cos(2 * np.pi * f * dx) + rho * rho)
+        p = p / red
+    p = np.clip(p, 0.0, 1.0)
     k = int(np.nanargmax(p))
     z = float(p[k])
     single = (1.0 - z) ** (0.5 * (n - 3))
@@ -149,10 +159,18 @@ def lomb_scargle(x, r, n_freq_max: int = 4000) -> tuple[float, float, float]:
     return z, min(max(fap, 0.0), 1.0), float(1.0 / f[k])
 
 
-def structure_tests(df: pd.DataFrame, residual: np.ndarray, covariates: list[str]) -> list[dict]:
-    """Return one record per (covariate, test): {covariate, test, statistic, p_value, periodic_period, method}."""
+def structure_tests(df: pd.DataFrame, residual: np.ndarray, covariates: list[str],
+                    correlation: dict | None = None) -> list[dict]:
+    """Return one record per (covariate, test): {covariate, test, statistic, p_value, periodic_period, method}.
+
+    With ``correlation`` (serially correlated residuals, :func:`serial_correlation`) the periodogram
+    of ordered covariates is tested against the AR(1) red-noise spectrum (Schulz & Mudelsee 2002,
+    Comput. Geosci. 28, 421), and the trend, lack-of-fit and runs tests along ordered covariates are
+    marked ``serial: True``: correlated noise alone makes them fire, so they are no evidence of an effect.
+    """
     out = []
     r = np.asarray(residual, float)
+    rho = correlation["rho"] if correlation else 0.0
     for col in covariates:
         x = df[col].to_numpy(dtype=float)
         if np.unique(x).size < 2:
@@ -170,13 +188,16 @@ def structure_tests(df: pd.DataFrame, residual: np.ndarray, covariates: list[str
             out.append({"covariate": col, "test": "runs", "statistic": z, "p_value": p,
                         "periodic_period": None, "method": "Wald-Wolfowitz runs of residual signs (one-sided)"})
         if is_ordered(col):
-            power, p, period = lomb_scargle(x, r)
+            power, p, period = lomb_scargle(x, r, rho=rho)
             if np.isfinite(p):
                 out.append({"covariate": col, "test": "periodogram", "statistic": power, "p_value": p,
                             "periodic_period": period, "method": "Lomb-Scargle, false-alarm probability"})
     m = max(len(out), 1)
     for rec in out:
         rec["p_adjusted"] = min(1.0, rec["p_value"] * m)
+        rec["serial"] = bool(correlation) and is_ordered(rec["covariate"]) and rec["test"] != "periodogram"
+        if correlation and is_ordered(rec["covariate"]) and rec["test"] == "periodogram":
+            rec["method"] += f" against AR(1) red noise (rho = {rho:.2f})"
     return out
 
 
@@ -214,53 +235,205 @@ def gasser_sd(x: np.ndarray, y: np.ndarray) -> float:
     return float(np.sqrt(np.mean(e * e / c2)))
 
 
+def outlier_threshold(n: int, alpha: float = OUTLIER_ALPHA) -> float:
+    """Return the |z| above which a row is an outlier: Bonferroni over n rows at family ``alpha``, >= 3.5."""
+    return max(3.5, float(stats.norm.isf(alpha / (2 * max(n, 1)))))
+
+
+def _robust_scale(z: np.ndarray) -> float:
+    """Return 1.4826 x the median absolute value (the normal-consistent MAD about zero)."""
+    z = np.asarray(z, float)
+    return float(1.4826 * np.median(np.abs(z))) if z.size else float("nan")
+
+
+def _replicate_noise(y: np.ndarray, g: np.ndarray) -> tuple[float, int, np.ndarray]:
+    """Return (pooled SD, dof, outlier mask) at replicate groups, outliers flagged by leave-one-out z."""
+    out = np.zeros(y.size, bool)
+    sd = float("nan")
+    for _ in range(4):
+        keep = ~out
+        cnt = np.bincount(g[keep], minlength=g.max() + 1).astype(float)
+        tot = np.bincount(g[keep], weights=y[keep], minlength=g.max() + 1)
+        c = cnt[g]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            loo = np.where(c - keep > 0, (tot[g] - np.where(keep, y, 0.0)) / (c - keep), np.nan)
+            scale = np.sqrt(1.0 + 1.0 / (c - keep))
+        d = (y - loo) / scale
+        ok = keep & np.isfinite(d) & (c >= 2)
+        if not np.isfinite(sd):
+            sd = _robust_scale(d[ok])
+        dof = int(np.sum(np.maximum(cnt - 1, 0)))
+        new = np.isfinite(d) & (np.abs(d) > outlier_threshold(y.size) * sd)
+        mean = np.where(cnt > 0, tot / np.maximum(cnt, 1), 0.0)
+        ss = float(np.sum(((y - mean[g]) ** 2)[keep & (cnt[g] >= 2)]))
+        sd = math.sqrt(ss / dof) if dof > 0 else float("nan")
+        if np.array_equal(new, out):
+            break
+        out = new
+    return sd, dof, out
+
+
+def _pseudo(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Return the normalised Gasser pseudo-residuals (N(0, sigma^2) for white noise) of interior points."""
+    x0, x1, x2 = x[:-2], x[1:-1], x[2:]
+    span = x2 - x0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a = np.where(span > 0, (x2 - x1) / span, 0.5)
+    b = 1.0 - a
+    return (a * y[:-2] + b * y[2:] - y[1:-1]) / np.sqrt(a * a + b * b + 1.0)
+
+
+def _ar1_pseudo_stats(rho: float) -> tuple[float, float]:
+    """Return (variance factor, lag-1 correlation) of equally spaced pseudo-residuals under AR(1) noise rho."""
+    c = np.array([0.5, -1.0, 0.5])
+
+    def cov(lag):
+        return sum(c[j] * c[k] * rho ** abs(lag + k - j) for j in range(3) for k in range(3))
+
+    v = cov(0)
+    return v / 1.5, cov(1) / v
+
+
+def record_order(df: pd.DataFrame, covariate: str) -> tuple[np.ndarray, np.ndarray]:
+    """Return (rows along ``covariate`` within each trial/run, segment id per row): the record's order."""
+    labels = [c for c in GROUP_LABELS if c in df.columns]
+    d = df.reset_index(drop=True)
+    order = d.sort_values(labels + [covariate], kind="stable").index.to_numpy()
+    seg = d.groupby(labels, sort=False).ngroup().to_numpy() if labels else np.zeros(len(d), int)
+    return order, seg
+
+
+def lag1_correlation(r: np.ndarray, order: np.ndarray, segment: np.ndarray) -> tuple[float, float]:
+    """Return (lag-1 autocorrelation, one-sided p against independence) of ``r`` along a record.
+
+    Within segments; p from the normal approximation r1 ~ N(-1/m, 1/m) of independent errors
+    (Box & Jenkins, Time Series Analysis, section 6.2).
+    """
+    r = np.asarray(r, float)[order]
+    seg = np.asarray(segment)[order]
+    r = r - np.array([r[seg == s].mean() for s in seg]) if seg.size else r
+    same = seg[1:] == seg[:-1]
+    m = int(same.sum())
+    den = float(r @ r)
+    if m < 8 or den <= 0:
+        return float("nan"), float("nan")
+    r1 = float(np.sum(r[1:][same] * r[:-1][same]) / den)
+    z = (r1 + 1.0 / m) * math.sqrt(m)
+    return r1, float(stats.norm.sf(z))
+
+
+def serial_correlation(df: pd.DataFrame, residual: np.ndarray, covariates: list[str],
+                       alpha: float = CORRELATION_ALPHA) -> dict | None:
+    """Return {covariate, rho, p_value} of serially correlated residuals along time/position, or None.
+
+    Computed on the residuals of the most flexible fit tried (so a missing smooth effect that a candidate
+    explains is not mistaken for correlated noise). Private keys ``_order``/``_segment`` give the record.
+    """
+    best = None
+    for c in covariates:
+        if not is_ordered(c) or df[c].nunique() < 8:
+            continue
+        order, seg = record_order(df, c)
+        rho, p = lag1_correlation(residual, order, seg)
+        if np.isfinite(p) and p < alpha / max(1, sum(map(is_ordered, covariates))) and rho > 0:
+            if best is None or p < best["p_value"]:
+                best = {"covariate": c, "rho": min(rho, 0.95), "p_value": p, "_order": order, "_segment": seg}
+    return best
+
+
+def correct_for_correlation(noise: dict, corr: dict | None) -> dict:
+    """Return the noise estimate corrected for AR(1) correlation: differences of correlated readings
+    understate the noise (variance factor of pseudo-residuals 1 - 4 rho/3 + rho^2/3, equal spacing)."""
+    if not corr:
+        return noise
+    out = dict(noise, correlated=corr)
+    if noise["method"].startswith("difference-based"):
+        f = _ar1_pseudo_stats(corr["rho"])[0]
+        out["sd"] = noise["sd"] / math.sqrt(f)
+        out["se"] = noise["se"] / math.sqrt(f) * math.sqrt((1 + corr["rho"]) / (1 - corr["rho"]))
+    out["method"] = (noise["method"] + f"; residuals serially correlated along {corr['covariate']} (lag-1 "
+                     f"correlation {corr['rho']:.2f}, p = {corr['p_value']:.2g})"
+                     + (": SD corrected for AR(1) noise" if noise["method"].startswith("difference-based") else ""))
+    return out
+
+
 def noise_estimate(df: pd.DataFrame, response: str) -> dict:
-    """Return {sd, se, method, dof} of the measurement noise (response unit)."""
+    """Return {sd, se, method, dof, reliable, outliers, correlated} of the measurement noise (response unit).
+
+    Replicates: pooled within-group SD at identical covariates; rows whose leave-one-out deviation from
+    their group exceeds :func:`outlier_threshold` robust SDs are flagged and left out (iterated).
+    Otherwise the difference-based estimator of Gasser, Sroka & Jennen-Steinmetz (1986) along each
+    ordering (within trials and levels of the other covariates), the smallest taken; its scale starts
+    from the MAD of the pseudo-residuals, a row whose pseudo-residual exceeds the threshold (and its
+    neighbours') is flagged and left out. Along time/position, serial correlation of the noise (AR(1),
+    :func:`serial_correlation`, p < 0.01) is detected; the SD is then corrected for it (differences of
+    correlated readings understate the noise) and ``correlated`` gives {covariate, rho, p_value}.
+    ``outliers`` lists the flagged rows (0-based positions in ``df``).
+    """
     y = df[response].to_numpy(dtype=float)
     g = replicate_groups(df, response)
     counts = np.bincount(g)
-    rep = counts[g] >= 2
     dof = int(np.sum(counts[counts >= 2] - 1))
     if dof >= 3 and (counts >= 2).sum() >= 2:
-        means = np.bincount(g, weights=y) / counts
-        ss = float(np.sum((y[rep] - means[g][rep]) ** 2))
-        sd = math.sqrt(ss / dof)
-        return {"sd": sd, "se": sd / math.sqrt(2 * dof), "dof": dof, "reliable": True,
+        sd, dof, out = _replicate_noise(y, g)
+        rows = [int(i) for i in np.flatnonzero(out)]
+        return {"sd": sd, "se": sd / math.sqrt(2 * max(dof, 1)), "dof": dof, "reliable": True, "outliers": rows,
+                "correlated": None,
                 "method": f"replicates: pooled within-group SD at identical covariates "
-                          f"({int((counts >= 2).sum())} groups, {dof} degrees of freedom)"}
+                          f"({int((counts >= 2).sum())} groups, {dof} degrees of freedom"
+                          + (f"; {len(rows)} outlier rows left out" if rows else "") + ")"}
     covs = numeric_covariates(df, response)
     labels = [c for c in GROUP_LABELS if c in df.columns]
-    best, how = float("nan"), ""
+    found = []
     for c in covs:
         if df[c].nunique() < 3:
             continue
-        # segments: the trial and the other covariates that take few values; differences restart there
         others = [o for o in covs if o != c and df[o].nunique() <= max(10, len(df) // 10)]
         d = df.reset_index(drop=True)
         order = d.sort_values(labels + others + [c], kind="stable").index.to_numpy()
         x = d[c].to_numpy(dtype=float)[order]
         yy = y[order]
-        key = d.loc[order, labels + others].astype(str).agg("|".join, axis=1).to_numpy() if labels + others else None
-        sds, ws = [], []
-        if key is None:
-            segs = [np.arange(y.size)]
-        else:
+        if labels + others:
+            key = d.loc[order, labels + others].astype(str).agg("|".join, axis=1).to_numpy()
             segs = [np.flatnonzero(key == k) for k in pd.unique(key)]
-        for s in segs:
-            if s.size >= 5:
-                sds.append(gasser_sd(x[s], yy[s]) ** 2)
-                ws.append(s.size - 2)
-        if not ws:
+        else:
+            segs = [np.arange(y.size)]
+        segs = [s for s in segs if s.size >= 5]
+        if not segs:
             continue
-        sd = math.sqrt(float(np.average(sds, weights=ws)))
-        if not np.isfinite(best) or sd < best:
-            best, how = sd, c
-    if not np.isfinite(best):
+        pseudo = [_pseudo(x[s], yy[s]) for s in segs]
+        sd0 = _robust_scale(np.concatenate(pseudo))
+        thr = outlier_threshold(y.size)
+        flagged = []
+        for s, e in zip(segs, pseudo):
+            z = np.abs(e) / sd0 if sd0 > 0 else np.zeros_like(e)
+            for j in np.flatnonzero(z > thr):
+                if z[j] >= z[max(j - 1, 0)] and z[j] >= z[min(j + 1, z.size - 1)]:
+                    flagged.append(int(order[s[j + 1]]))
+        fl = set(flagged)
+        clean = [np.array([i for i in s if order[i] not in fl], int) for s in segs]
+        clean = [s for s in clean if s.size >= 5]
+        if not clean:
+            continue
+        pe = [_pseudo(x[s], yy[s]) for s in clean]
+        allp = np.concatenate(pe)
+        sd = float(np.sqrt(np.mean(allp ** 2)))
+        corr = None
+        found.append((sd, c, sorted(fl), corr, int(allp.size)))
+    # correlated noise is a property of the noise: when an ordering shows it, its corrected estimate is used
+    pool = [f for f in found if f[3]] or found
+    best = min(pool, key=lambda f: f[0]) if pool else None
+    if best is None:
         sd = float(np.std(y, ddof=1)) if y.size > 1 else float("nan")
         return {"sd": sd, "se": sd / math.sqrt(max(2 * (y.size - 1), 1)), "dof": int(y.size - 1), "reliable": False,
+                "outliers": [], "correlated": None,
                 "method": "no replicates and too few points along any covariate: SD of the data (an upper bound)"}
-    n = y.size
-    return {"sd": best, "se": best / math.sqrt(max(n - 2, 1)), "dof": int(n - 2), "reliable": True,
+    sd, how, rows, corr, m = best
+    se = sd / math.sqrt(max(m, 1)) * (math.sqrt((1 + corr["rho"]) / (1 - corr["rho"])) if corr else 1.0)
+    return {"sd": sd, "se": se, "dof": int(m), "reliable": True, "outliers": rows, "correlated": corr,
             "method": f"difference-based (Gasser, Sroka & Jennen-Steinmetz 1986) along {how}"
                       + (f" within each {', '.join(labels)}" if labels else "")
-                      + ": no replicates at identical covariates"}
+                      + ": no replicates at identical covariates"
+                      + (f"; {len(rows)} outlier rows left out" if rows else "")
+                      + (f"; serially correlated noise along {how} (AR(1) rho = {corr['rho']:.2f}, p = "
+                         f"{corr['p_value']:.2g}), SD corrected for it" if corr else "")}
