@@ -150,14 +150,24 @@ def _fmt(v: float, unit: str = "") -> str:
     return f"{s} {unit}".strip()
 
 
-def run_diagnose(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_dir: str | Path,
-                 write_model: str | Path | None = None, k_folds: int = 5, seed: int = 0,
-                 add_best: bool = False, quiet: bool = True, figures: bool = True) -> dict:
-    """Diagnose ``model`` against the table; write diagnosis.json/.md, figures and optionally the new model."""
-    from ..plots import loop as plots
+@dataclass
+class Diagnosis:
+    """What :func:`diagnose_table` found (no files written): the JSON record and the evaluations behind it."""
+
+    result: dict
+    base: Evaluation
+    cands: list[Candidate]
+    winner: Candidate | None
+    winner_named: bool
+    covs: list[str]
+    df: pd.DataFrame  # the rows used (outliers left out)
+
+
+def diagnose_table(model: Model, df: pd.DataFrame, kind: str, where: str = "", k_folds: int = 5, seed: int = 0,
+                   quiet: bool = True) -> Diagnosis:
+    """Fit the model and every applicable candidate, test the residuals and decide the verdict; no files."""
     from ..progress import track
 
-    out = Path(out_dir)
     resp = response_column(kind)
     unit = unit_label(resp)
     df_all = df
@@ -165,7 +175,7 @@ def run_diagnose(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_
     outliers = list(noise.get("outliers", []))
     if outliers:  # flagged rows are reported and left out of every fit
         df = df.drop(index=df.index[outliers]).reset_index(drop=True)
-    bound = model.bind(df, where=str(data_path))
+    bound = model.bind(df, where=str(where))
     groups, how = crossval.cv_groups(df, resp)
     folds = crossval.assign_folds(groups, k_folds, seed)
     base = evaluate(bound, folds, groups, seed=seed)
@@ -206,11 +216,10 @@ def run_diagnose(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_
                 "params": {k: v for k, v in pt.items() if v.get("owner") == c.effect.name},
                 "base_params": {k: v for k, v in pt.items() if v.get("owner") == "base" and v.get("free")}}
 
-    dh = data_hash(data_path)
     result = {
         "model": model.name, "model_file": model.path, "model_hash": model.hash, "kind": kind,
-        "base": model.base.name, "effects": model.effect_names, "data": str(data_path), "data_hash": dh,
-        "n": int(base.y.size), "unit": unit,
+        "base": model.base.name, "effects": model.effect_names, "data": str(where), "data_hash": None,
+        "n": int(base.y.size), "n_rows": int(len(df_all)), "unit": unit,
         "noise": {"sd": sigma, "se": noise["se"], "method": noise["method"], "reliable": noise.get("reliable", True),
                   "correlated": ({k: v for k, v in noise["correlated"].items() if not k.startswith("_")}
                                  if noise.get("correlated") else None)},
@@ -228,7 +237,23 @@ def run_diagnose(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_
         "verdict": verdict,
         "rule": RULE_TEXT, "alpha_effect": ALPHA_EFFECT, "alpha_structure": ALPHA_STRUCTURE,
     }
+    return Diagnosis(result, base, cands, winner, winner_named, covs, df)
 
+
+def run_diagnose(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_dir: str | Path,
+                 write_model: str | Path | None = None, k_folds: int = 5, seed: int = 0,
+                 add_best: bool = False, quiet: bool = True, figures: bool = True) -> dict:
+    """Diagnose ``model`` against the table; write diagnosis.json/.md, figures and optionally the new model."""
+    dg = diagnose_table(model, df, kind, str(data_path), k_folds, seed, quiet)
+    result, base, cands, winner, winner_named, covs, df = (dg.result, dg.base, dg.cands, dg.winner,
+                                                            dg.winner_named, dg.covs, dg.df)
+    resp = response_column(kind)
+    unit = unit_label(resp)
+    sigma = result["noise"]["sd"]
+    verdict = result["verdict"]
+    dh = data_hash(data_path)
+    result["data_hash"] = dh
+    out = Path(out_dir)
     # tables and figures
     out.mkdir(parents=True, exist_ok=True)
     prov = provenance(config_hash=model.hash, seed=seed, data_synthetic=is_synthetic(df), model=model.content, data=str(data_path), data_hash=dh)
@@ -236,6 +261,8 @@ def run_diagnose(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_
     write_table(res, out / "residuals.parquet", residual_schema(res), prov)
     figs = []
     if figures:
+        from ..plots import loop as plots
+
         plots.plot_residuals(res, covs, resp, out / "residuals.png", noise_sd=sigma,
                              title=f"{model.name}: residuals against each covariate")
         figs.append("residuals.png")
