@@ -162,8 +162,18 @@ def fold_train(position_m, spacing_m, width_m, phase_m):
     return np.exp(-0.5 * (d / w) ** 2)
 
 
+def odd_folds(position_m, spacing_m, phase_m):
+    """Return 1.0 where the nearest fold is an odd one (k = 1, 3, ... counted from the fold at the phase), else 0."""
+    x = np.asarray(position_m, float)
+    P = max(float(spacing_m), 1e-12)
+    k = np.floor((x - float(phase_m)) / P + 0.5)
+    return np.mod(k, 2.0)
+
+
 def _folds(y, x, p, ctx):
-    return y + p["fold_amplitude"] * fold_train(x["position"], p["fold_spacing"], p["fold_width"], p["fold_phase"])
+    train = fold_train(x["position"], p["fold_spacing"], p["fold_width"], p["fold_phase"])
+    odd = odd_folds(x["position"], p["fold_spacing"], p["fold_phase"])
+    return y + (p["fold_amplitude"] + p["fold_alternation"] * odd) * train
 
 
 def _folds_guess(r, x, ctx):
@@ -190,15 +200,26 @@ def _folds_guess(r, x, ctx):
             if red[j] > best[0]:
                 best = (float(red[j]), float(P), float(w), float(phases[j]), float(a[j]))
     _, P, w, ph, a = best
-    return {"fold_amplitude": max(a, 1e-9), "fold_spacing": P, "fold_width": w, "fold_phase": ph}
+    # heights of odd folds against even ones: least squares on the two trains
+    tr = fold_train(pos, P, w, ph)
+    odd = odd_folds(pos, P, ph)
+    B = np.stack([tr * (1 - odd), tr * odd, np.ones_like(tr)], axis=1)
+    coef = np.linalg.lstsq(B, np.asarray(r, float), rcond=None)[0]
+    if np.all(np.isfinite(coef)) and coef[0] > 0 and coef[1] > 0:
+        return {"fold_amplitude": float(coef[0]), "fold_alternation": float(coef[1] - coef[0]), "fold_spacing": P,
+                "fold_width": w, "fold_phase": ph}
+    return {"fold_amplitude": max(a, 1e-9), "fold_alternation": 0.0, "fold_spacing": P, "fold_width": w,
+            "fold_phase": ph}
 
 
 register_effect(Effect(
     name="circular_folds", kind=KIND,
     description="Circular folds of the mucosa: friction peaks each time the capsule climbs a fold, "
-                "F += A sum_k exp(-(x - x0 - k s)^2 / (2 w^2)) over position x (fold spacing s, peak width w "
-                "<= s/8, first fold x0). Seed 000 Case 2: folds 1.67-2.34 mm high, 3.1-3.3 mm wide, 50 mm apart; "
-                "peaks 37.5 and 88.2 mN over 15.6 mN between folds.",
+                "F += sum_k A_k exp(-(x - x0 - k s)^2 / (2 w^2)) over position x (fold spacing s, peak width w "
+                "<= s/8, fold k = 0 at x0), with A_k = A for even folds and A + dA for odd ones (folds of two "
+                "heights alternate; dA = 0: all alike). Seed 000 Case 2: folds 1.67-2.34 mm high, 3.1-3.3 mm "
+                "wide, 50 mm apart; a small and a large fold, peaks 37.5 and 88.2 mN over 15.6 mN between folds "
+                "(A = 21.9 mN, dA = 50.7 mN).",
     source="seed 000 section 4.2 (Fig 11)",
     params=(Param("fold_amplitude_mN", 20.0, (0.0, 1e5), 0.0, description="peak friction above the base"),
             Param("fold_spacing_mm", 50.0, (10.0, 1000.0), 50.0, description="distance between folds s"),

@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from ..effects.model import BoundModel, Model
-from ..fitting import FitResult, fit_least_squares, information_criteria, prediction_band
+from ..fitting import DEGENERATE_CI_RATIO, FitResult, fit_least_squares, information_criteria, prediction_band
 from ..tables import (Column, TableSchema, is_synthetic, provenance, response_column, write_json_atomic, write_table)
 from ..units import split_unit, unit_label
 from . import crossval
@@ -110,7 +110,11 @@ def main_covariate(df: pd.DataFrame, kind: str) -> str:
 
 
 def param_table(ev: Evaluation) -> dict:
-    """Return ``{key: {value, stderr, ci95, at_bound, unit, free}}`` for every model parameter."""
+    """Return ``{key: {value, stderr, ci95, at_bound, degenerate, unit, free}}`` for every model parameter.
+
+    ci95 lies inside the parameter's bounds; ``at_bound`` marks a value that ended at a bound (the model or
+    the bounds are often wrong then); ``degenerate`` one the data do not determine (see fitting.py).
+    """
     vals = ev.bound.values(ev.theta)
     fitted = ev.fit.as_dict() if ev.fit is not None else {}
     out = {}
@@ -120,9 +124,28 @@ def param_table(ev: Evaluation) -> dict:
             continue
         rec = {"value": vals[s.key], "free": s.key in fitted, "unit": s.param.unit, "owner": s.owner}
         if s.key in fitted:
-            rec.update({k: fitted[s.key][k] for k in ("stderr", "ci95", "at_bound")})
+            rec.update({k: fitted[s.key][k] for k in ("stderr", "ci95", "at_bound", "degenerate")})
             rec["bounds"] = list(s.bounds)
         out[s.key] = rec
+    return out
+
+
+def fit_warnings(params: dict) -> list[str]:
+    """Return one plain sentence per free parameter that ended at a bound or is degenerate."""
+    out = []
+    for k, p in params.items():
+        if not p.get("free"):
+            continue
+        u = f" {p['unit']}" if p.get("unit") else ""
+        if p.get("at_bound"):
+            lo, hi = p.get("bounds", [None, None])
+            out.append(f"{k} ended at its bound ({p['value']:.3g}{u}; bounds [{lo:g}, {hi:g}]): the model's form or "
+                       "the bounds are probably wrong")
+        if p.get("degenerate"):
+            ci = p.get("ci95") or [float("nan"), float("nan")]
+            out.append(f"{k} = {p['value']:.3g}{u} is not determined by the data (95 % interval [{ci[0]:.3g}, "
+                       f"{ci[1]:.3g}] spans more than {DEGENERATE_CI_RATIO:g} x its value): a degenerate fit, not a "
+                       "result")
     return out
 
 
@@ -226,6 +249,7 @@ def metrics(ev: Evaluation, noise: dict, data_path: str, dhash: str, k_folds: in
         "cv_rmse_over_noise": ev.cv_rmse / noise["sd"] if noise["sd"] and noise["sd"] > 0 else None,
         "aic": ev.aic, "bic": ev.bic,
         "params": param_table(ev),
+        "fit_warnings": fit_warnings(param_table(ev)),
         "fit_converged": None if ev.fit is None else bool(ev.fit.success),
     }
 

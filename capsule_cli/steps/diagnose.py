@@ -24,7 +24,8 @@ from ..tables import (is_synthetic, provenance, response_column, write_json_atom
                       write_text_atomic)
 from ..units import split_unit, unit_label
 from . import crossval
-from .compare import (CURVE_SCHEMA, Evaluation, data_hash, evaluate, fit_curves, main_covariate, param_table,
+from .compare import (CURVE_SCHEMA, Evaluation, data_hash, evaluate, fit_curves, fit_warnings, main_covariate,
+                      param_table,
                       residual_frame, residual_schema)
 from .residual_tests import (correct_for_correlation, is_ordered, noise_estimate, numeric_covariates, serial_correlation,
                              structure_tests)
@@ -206,6 +207,10 @@ def diagnose_table(model: Model, df: pd.DataFrame, kind: str, where: str = "", k
     winner_named = vres.missing_effect is not None
     winner = next((c for c in cands if c.effect.name == vres.missing_effect), None)
     left = vres.structure_used if winner is not None else []
+    warn = fit_warnings(param_table(winner.ev if winner is not None else base))
+    if warn:
+        verdict["message"] += ". Fit warnings: " + "; ".join(warn)
+    verdict["fit_warnings"] = warn
 
     def cand_rec(c: Candidate) -> dict:
         pt = param_table(c.ev)
@@ -367,6 +372,8 @@ def diagnosis_markdown(r: dict, cands: list[Candidate], base: Evaluation, winner
             if p.get("owner") == winner.effect.name or p.get("free"):
                 ci = p.get("ci95")
                 ci_txt = f" [{_fmt(ci[0])}, {_fmt(ci[1])}]" if ci else " (fixed)"
+                ci_txt += " -- AT ITS BOUND" if p.get("at_bound") else ""
+                ci_txt += " -- DEGENERATE (not determined by the data)" if p.get("degenerate") else ""
                 lines.append(f"- {k} = {_fmt(p['value'])} {p.get('unit', '')}{ci_txt}")
         if r.get("residual_structure_after_winner"):
             s = r["residual_structure_after_winner"][0]
