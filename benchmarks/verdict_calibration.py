@@ -85,6 +85,8 @@ def run_nulls(n_sets: int, seed0: int = 0) -> dict:
         rec["n_sets"] += 1
         rec["findings"] += finding(v)
         rec["outcomes"][v["outcome"]] = rec["outcomes"].get(v["outcome"], 0) + 1
+        if finding(v):
+            rec.setdefault("messages", []).append(v["message"])
     tot = sum(r["findings"] for r in per.values())
     return {"n_sets": n_sets, "findings": tot, "false_alarm_rate": tot / max(n_sets, 1), "per_design": per}
 
@@ -129,6 +131,7 @@ def run_power(sizes, per_size: int, null_rate: float, n_nulls: int, seed0: int =
                 hit += v["missing_effect"] == eff
                 anyf += finding(v)
                 ora += oracle_p(df["friction_mN"].to_numpy(), shape) < alpha_oracle
+            print(f"power {eff} k={k}: named {hit}/{per_size}, oracle {ora}/{per_size}", file=sys.stderr)
             rows.append({"k": k, "n_sets": per_size, "named_true_effect": hit / per_size, "any_finding": anyf / per_size,
                          "oracle_lrt": ora / per_size,
                          "ratio": (hit / per_size) / (ora / per_size) if ora else None})

@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from ..effects.model import BoundModel, Model
+from ..errors import InputError
 from ..fitting import DEGENERATE_CI_RATIO, FitResult, fit_least_squares, information_criteria, prediction_band
 from ..tables import (Column, TableSchema, is_synthetic, provenance, response_column, write_json_atomic, write_table)
 from ..units import split_unit, unit_label
@@ -81,6 +82,11 @@ def evaluate(bound: BoundModel, folds: np.ndarray, groups: np.ndarray, x0=None, 
     y = bound.observed()
     theta, fit = calibrate(bound, y, None, x0, n_starts, seed)
     pred = bound.predict(theta)
+    if not np.all(np.isfinite(pred)):
+        i = int(np.argmax(~np.isfinite(pred)))
+        raise InputError(f"{bound.where or 'data'}: row {i + 1}: model '{bound.model.name}' gives a non-finite "
+                         f"response there (its covariates: "
+                         f"{', '.join(f'{c}={bound.df[c].iloc[i]}' for c in bound.df.columns if c != bound.response and pd.api.types.is_numeric_dtype(bound.df[c]))})")
     cv_pred = np.empty_like(y)
     for f in np.unique(folds):
         test = np.flatnonzero(folds == f)

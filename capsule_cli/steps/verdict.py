@@ -28,8 +28,8 @@ The rule (fixed in advance, printed in every report, :data:`RULE_TEXT`):
   Regression, section 5.3) has p < ALPHA_EFFECT / m (Bonferroni over the m
   candidates tried) and its held-out mean squared error is lower than the
   model's (it predicts unseen rows better, not only the fitted ones);
-* of supported candidates the one with the smallest p is taken (ties: fewer
-  free parameters);
+* of supported candidates the one with the lowest AICc (Hurvich & Tsai 1989) is
+  taken; others within CLOSE_AICC are named as near-equal alternatives;
 * with none supported, residual structure (tests of
   :mod:`.residual_tests`, Bonferroni over all tests, family ALPHA_STRUCTURE)
   names a covariate;
@@ -58,6 +58,8 @@ ALPHA_STRUCTURE = 0.01
 COLLINEAR_R = 0.95
 #: share of the excess held-out MSE (above the noise) a winner must remove to be named as a partial step
 PARTIAL_SHARE = 0.5
+#: supported candidates within this many AICc units of the winner are named as near-equal alternatives
+CLOSE_AICC = 2.0
 #: power wanted when estimating how many measurements would settle a "cannot tell"
 TARGET_POWER = 0.8
 #: held-out error above noise * sqrt(inflation) by more than this many standard errors contradicts "nothing missing"
@@ -66,7 +68,8 @@ EXCESS_Z = 2.0
 RULE_TEXT = (
     "A candidate effect is named only if its nested F test against the model as is has p < "
     f"{ALPHA_EFFECT:g}/m (Bonferroni over the m candidates tried) and it lowers the held-out (cross-validated) "
-    "mean squared error; among those the smallest p wins (ties: fewer free parameters). If structure remains "
+    f"mean squared error; among those the lowest AICc wins (others within {CLOSE_AICC:g} are named as "
+    "near-equal alternatives). If structure remains "
     "against the winner's own covariate it is named as a partial step when it removes at least "
     f"{100 * PARTIAL_SHARE:g} % of the held-out error above the noise; otherwise its form does not fit and the "
     "covariate is named (an effect that is not built in). With no candidate named, residual "
@@ -163,6 +166,15 @@ def nested_f_test(rss0: float, k0: int, rss1: float, k1: int, n: int) -> tuple[f
     return float(F), float(stats.f.sf(F, dk, dof))
 
 
+def aicc(rss: float, n: int, k: int) -> float:
+    """Return the small-sample Akaike criterion of a Gaussian least-squares fit with k free parameters
+    (+ the noise variance; Hurvich & Tsai 1989, Biometrika 76, 297; Burnham & Anderson 2002, section 2.4)."""
+    kk = k + 1
+    if n - kk - 1 <= 0 or rss <= 0:
+        return float("inf")
+    return float(n * math.log(rss / n) + 2 * kk + 2 * kk * (kk + 1) / (n - kk - 1))
+
+
 def collinear_groups(covariates: Mapping[str, np.ndarray], threshold: float = COLLINEAR_R) -> list[list[str]]:
     """Return groups of covariates whose values are (nearly) collinear: max(|Pearson|, |Spearman|) >= threshold."""
     names = [c for c, x in covariates.items() if np.unique(np.asarray(x, float)).size >= 2]
@@ -199,24 +211,25 @@ def expected_cv_inflation(n: int, k: int, n_folds: int) -> float:
     return 1.0 + k / n_train
 
 
-def measurements_needed(f_stat: float, dk: int, n: int, alpha: float, power: float = TARGET_POWER) -> int | None:
-    """Return roughly how many measurements (same design, scaled) would make an effect like this one detectable.
+def measurements_needed(f_stat: float, dk: int, n: int, k1: int, alpha: float,
+                        power: float = TARGET_POWER) -> int | None:
+    """Return roughly how many measurements in all (same design, scaled) would make an effect like this one
+    detectable: the smallest n' > n at which the F test at ``alpha`` has the given power.
 
-    The observed noncentrality lambda = dk * F grows in proportion to n; the answer is the n at which the
-    F test at ``alpha`` has the given power (noncentral chi-square approximation).
+    The noncentrality is estimated as lambda = dk (F - 1) (its unbiased estimate, floored at 0) and grows in
+    proportion to n; power from the noncentral F distribution with n' - k1 residual degrees of freedom.
     """
-    lam = dk * f_stat - dk  # bias-corrected estimate of the noncentrality
+    lam = dk * (f_stat - 1.0)
     if not np.isfinite(lam) or lam <= 0.05:
         return None
-    crit = stats.chi2.isf(alpha, dk)
-    lo, hi = 1e-3, 1e4
-    for _ in range(80):  # noncentrality needed for the power
-        mid = math.sqrt(lo * hi)
-        if stats.ncx2.sf(crit, dk, mid) < power:
-            lo = mid
-        else:
-            hi = mid
-    return int(math.ceil(n * hi / lam))
+    for m in range(n + 1, 100 * n + 1):
+        dof = m - k1
+        if dof < 1:
+            continue
+        crit = stats.f.isf(alpha, dk, dof)
+        if stats.ncf.sf(crit, dk, dof, lam * m / n) >= power:
+            return m
+    return None
 
 
 def where_to_measure(diff: np.ndarray, covariates: Mapping[str, np.ndarray], names: Sequence[str]) -> dict | None:
@@ -334,7 +347,9 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
 
     sup = [(t, c) for t, c in zip(tests, candidates) if t.supported]
     if sup:
-        t, win = min(sup, key=lambda tc: (tc[0].p_value, tc[1].n_free))
+        crit = {c.name: aicc(c.rss, n, c.n_free) for _, c in sup}
+        t, win = min(sup, key=lambda tc: (crit[tc[1].name], tc[1].n_free))
+        close = [c.name for _, c in sup if c is not win and crit[c.name] - crit[win.name] < CLOSE_AICC]
         own = [c for c in win.covariates if c in covariates]
         conf = sorted({p for c in own for p in _partners(c, coll)} - set(own)) if own else []
         cov = own[0] if own else None
@@ -351,8 +366,10 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
                            tests=tests)
         left = _significant(win.structure, alpha_structure)
         own_left = [s for s in left if s["covariate"] in own]
+        alt = (f"; {', '.join(close)} fits almost as well (AICc within {CLOSE_AICC:g}): the data barely tell "
+               "them apart" if close else "")
         msg = (f"adding {win.name} cuts held-out RMSE from {_g(cv_base)} to {_g(win.cv_rmse)} {unit} "
-               f"(F test p = {_g(t.p_value)}, {m} candidates tried); {noise_txt}{corr_txt}")
+               f"(F test p = {_g(t.p_value)}, {m} candidates tried{alt}); {noise_txt}{corr_txt}")
         if own_left:
             s = own_left[0]
             per = _period(win.structure, s["covariate"], alpha_structure) if s["covariate"] in ordered else None
@@ -416,7 +433,7 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
         ct, cc = tests[i], candidates[i]
         closest = ct.name
         dk = max(cc.n_free - base.n_free, 1)
-        more = measurements_needed(ct.f_stat, dk, n, alpha_effect / m)
+        more = measurements_needed(ct.f_stat, dk, n, cc.n_free, alpha_effect / m)
         where = where_to_measure(cc.pred - base.pred, covariates, list(cc.covariates) or list(covariates))
     why = (f"held-out RMSE {_g(cv_base)} {unit} exceeds the {_g(expect)} {unit} expected from the noise by more "
            f"than {EXCESS_Z:g} standard errors ({_g(comb_se)})" if noise.reliable else
