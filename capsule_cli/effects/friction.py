@@ -173,7 +173,7 @@ def odd_folds(position_m, spacing_m, phase_m):
 def _folds(y, x, p, ctx):
     train = fold_train(x["position"], p["fold_spacing"], p["fold_width"], p["fold_phase"])
     odd = odd_folds(x["position"], p["fold_spacing"], p["fold_phase"])
-    return y + (p["fold_amplitude"] + p["fold_alternation"] * odd) * train
+    return y + p["fold_amplitude"] * (1.0 + (p["fold_height_ratio"] - 1.0) * odd) * train
 
 
 def _folds_guess(r, x, ctx):
@@ -206,9 +206,9 @@ def _folds_guess(r, x, ctx):
     B = np.stack([tr * (1 - odd), tr * odd, np.ones_like(tr)], axis=1)
     coef = np.linalg.lstsq(B, np.asarray(r, float), rcond=None)[0]
     if np.all(np.isfinite(coef)) and coef[0] > 0 and coef[1] > 0:
-        return {"fold_amplitude": float(coef[0]), "fold_alternation": float(coef[1] - coef[0]), "fold_spacing": P,
-                "fold_width": w, "fold_phase": ph}
-    return {"fold_amplitude": max(a, 1e-9), "fold_alternation": 0.0, "fold_spacing": P, "fold_width": w,
+        return {"fold_amplitude": float(coef[0]), "fold_height_ratio": float(np.clip(coef[1] / coef[0], 0.0, 20.0)),
+                "fold_spacing": P, "fold_width": w, "fold_phase": ph}
+    return {"fold_amplitude": max(a, 1e-9), "fold_height_ratio": 1.0, "fold_spacing": P, "fold_width": w,
             "fold_phase": ph}
 
 
@@ -216,12 +216,14 @@ register_effect(Effect(
     name="circular_folds", kind=KIND,
     description="Circular folds of the mucosa: friction peaks each time the capsule climbs a fold, "
                 "F += sum_k A_k exp(-(x - x0 - k s)^2 / (2 w^2)) over position x (fold spacing s, peak width w "
-                "<= s/8, fold k = 0 at x0), with A_k = A for even folds and A + dA for odd ones (folds of two "
-                "heights alternate; dA = 0: all alike). Seed 000 Case 2: folds 1.67-2.34 mm high, 3.1-3.3 mm "
+                "<= s/8, fold k = 0 at x0), with A_k = A for even folds and r A for odd ones (folds of two "
+                "heights alternate; r = 1: all alike). Seed 000 Case 2: folds 1.67-2.34 mm high, 3.1-3.3 mm "
                 "wide, 50 mm apart; a small and a large fold, peaks 37.5 and 88.2 mN over 15.6 mN between folds "
-                "(A = 21.9 mN, dA = 50.7 mN).",
+                "(A = 21.9 mN, r = 3.32).",
     source="seed 000 section 4.2 (Fig 11)",
-    params=(Param("fold_amplitude_mN", 20.0, (0.0, 1e5), 0.0, description="peak friction above the base"),
+    params=(Param("fold_amplitude_mN", 20.0, (0.0, 1e5), 0.0, description="peak friction of even folds above the base"),
+            Param("fold_height_ratio", 1.0, (0.0, 20.0), 1.0,
+                  description="peak of odd folds over peak of even folds (folds of two heights; 1: all alike)"),
             Param("fold_spacing_mm", 50.0, (10.0, 1000.0), 50.0, description="distance between folds s"),
             Param("fold_width_mm", 3.0, (0.3, 100.0), 3.0, description="peak width w (Gaussian sigma)"),
             Param("fold_phase_mm", 0.0, (-1000.0, 1000.0), 0.0, description="position x0 of a fold")),

@@ -137,7 +137,10 @@ def compute_verdict(df: pd.DataFrame, resp: str, base: Evaluation, cands: list[C
         if c.structure is None:
             c.structure = structure_tests(df, c.ev.resid, covs, correlation=noise.get("correlated"))
         own = [x for x in covs if base_name(x) in {base_name(e) for e in c.effect.covariates}]
-        sums.append(summary(c.ev, c.effect.name, own, c.structure))
+        sm = summary(c.ev, c.effect.name, own, c.structure)
+        sm.at_bound = tuple(k for k, p in param_table(c.ev).items()
+                            if p.get("owner") == c.effect.name and p.get("at_bound"))
+        sums.append(sm)
     nz = Noise(noise["sd"], noise["se"], noise.get("reliable", True), noise["method"], noise.get("correlated"))
     return decide_verdict(base.y, summary(base), sums, nz, {c: df[c].to_numpy(float) for c in covs}, struct,
                           groups, int(np.unique(folds).size), ordered=[c for c in covs if is_ordered(c)],
@@ -192,7 +195,11 @@ def diagnose_table(model: Model, df: pd.DataFrame, kind: str, where: str = "", k
         else:
             cands.append(c)
     flexible = min([base] + [c.ev for c in cands], key=lambda e: e.rss)
-    noise = correct_for_correlation(noise, serial_correlation(df, flexible.resid, covs))
+    corr = serial_correlation(df, flexible.resid, covs)
+    if corr and any(s["test"] == "periodogram" and s["p_adjusted"] < ALPHA_STRUCTURE
+                    for s in structure_tests(df, flexible.resid, covs, correlation=corr)):
+        corr = None  # a period above the correlated-noise background: structure, not correlated noise
+    noise = correct_for_correlation(noise, corr)
     sigma = noise["sd"]
     struct = structure_tests(df, base.resid, covs, correlation=noise.get("correlated"))
     cands.sort(key=lambda c: c.ev.cv_rmse)

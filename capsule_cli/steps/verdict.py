@@ -29,7 +29,8 @@ The rule (fixed in advance, printed in every report, :data:`RULE_TEXT`):
   candidates tried) and its held-out mean squared error is lower than the
   model's (it predicts unseen rows better, not only the fitted ones);
 * of supported candidates the one with the lowest AICc (Hurvich & Tsai 1989) is
-  taken; others within CLOSE_AICC are named as near-equal alternatives;
+  taken, those with an own parameter at its bound last; others within CLOSE_AICC
+  are named as near-equal alternatives;
 * with none supported, residual structure (tests of
   :mod:`.residual_tests`, Bonferroni over all tests, family ALPHA_STRUCTURE)
   names a covariate;
@@ -69,10 +70,10 @@ RULE_TEXT = (
     "A candidate effect is named only if its nested F test against the model as is has p < "
     f"{ALPHA_EFFECT:g}/m (Bonferroni over the m candidates tried) and it lowers the held-out (cross-validated) "
     f"mean squared error; among those the lowest AICc wins (others within {CLOSE_AICC:g} are named as "
-    "near-equal alternatives). If structure remains "
+    "near-equal alternatives; candidates with a parameter at its bound only if no other passes). If structure remains "
     "against the winner's own covariate it is named as a partial step when it removes at least "
-    f"{100 * PARTIAL_SHARE:g} % of the held-out error above the noise; otherwise its form does not fit and the "
-    "covariate is named (an effect that is not built in). With no candidate named, residual "
+    f"{100 * PARTIAL_SHARE:g} % of the held-out error above the noise and what remains is not periodic; otherwise "
+    "its form does not fit and the covariate is named (an effect that is not built in, with its period). With no candidate named, residual "
     "structure (trend, lack of fit, runs, periodogram; serial correlation of the noise along time/position "
     f"allowed for; Bonferroni over all tests, family alpha = {ALPHA_STRUCTURE:g}) names the covariate an effect "
     "that is not built in depends on. Covariates collinear in the data (|r| >= "
@@ -93,6 +94,7 @@ class FitSummary:
     sq_err : held-out squared errors per row [response unit^2]
     covariates : covariate columns the effect depends on (empty for the model as is)
     structure : residual-structure records of its in-sample residuals (see residual_tests.structure_tests)
+    at_bound : names of the effect's parameters that ended at a bound (its form strained to fit)
     """
 
     name: str
@@ -102,6 +104,7 @@ class FitSummary:
     sq_err: np.ndarray
     covariates: tuple[str, ...] = ()
     structure: list[dict] = field(default_factory=list)
+    at_bound: tuple[str, ...] = ()
 
     @property
     def cv_rmse(self) -> float:
@@ -348,7 +351,8 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
     sup = [(t, c) for t, c in zip(tests, candidates) if t.supported]
     if sup:
         crit = {c.name: aicc(c.rss, n, c.n_free) for _, c in sup}
-        t, win = min(sup, key=lambda tc: (crit[tc[1].name], tc[1].n_free))
+        # a candidate whose own parameters end at a bound is strained to fit: any unstrained one goes first
+        t, win = min(sup, key=lambda tc: (bool(tc[1].at_bound), crit[tc[1].name], tc[1].n_free))
         close = [c.name for _, c in sup if c is not win and crit[c.name] - crit[win.name] < CLOSE_AICC]
         own = [c for c in win.covariates if c in covariates]
         conf = sorted({p for c in own for p in _partners(c, coll)} - set(own)) if own else []
@@ -378,7 +382,8 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
             floor = expect ** 2 if np.isfinite(expect) and noise.reliable else 0.0
             excess2 = cv_base ** 2 - floor
             share = (cv_base ** 2 - win.cv_rmse ** 2) / excess2 if excess2 > 0 else 0.0
-            if share >= PARTIAL_SHARE:
+            periodic = any(x["test"] == "periodogram" for x in own_left)
+            if share >= PARTIAL_SHARE and not periodic:
                 msg = (f"partial step: {msg}. Structure remains against {s['covariate']} ({s['test']}, "
                        f"p = {_g(s['p_value'])}{ptxt}): a second effect or a plugin; add {win.name} and run "
                        "diagnose again")
@@ -386,9 +391,10 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
                                structure_used=left)
             per = _period(structure, s["covariate"], alpha_structure) if s["covariate"] in ordered else per
             ptxt = f" (period {_g(per)})" if per else ""
+            how = "leaves a periodic residual" if periodic else f"removes only {100 * share:.0f} % of the error above the noise"
             msg = (f"an effect that is not built in depends on {s['covariate']}{ptxt}: write a plugin. The closest "
-                   f"built-in effect, {win.name}, removes only {100 * share:.0f} % of the error above the noise "
-                   f"(held-out RMSE {_g(cv_base)} -> {_g(win.cv_rmse)} {unit}) and leaves structure against "
+                   f"built-in effect, {win.name}, {how} "
+                   f"(held-out RMSE {_g(cv_base)} -> {_g(win.cv_rmse)} {unit}): structure remains against "
                    f"{s['covariate']} ({s['test']}, p = {_g(s['p_value'])}); {noise_txt}{corr_txt}")
             return Verdict("not_built_in", None, s["covariate"], per, msg, closest=win.name, tests=tests,
                            structure_used=left)
