@@ -200,14 +200,27 @@ def _folds_guess(r, x, ctx):
             if red[j] > best[0]:
                 best = (float(red[j]), float(P), float(w), float(phases[j]), float(a[j]))
     _, P, w, ph, a = best
-    # heights of odd folds against even ones: least squares on the two trains
-    tr = fold_train(pos, P, w, ph)
-    odd = odd_folds(pos, P, ph)
-    B = np.stack([tr * (1 - odd), tr * odd, np.ones_like(tr)], axis=1)
-    coef = np.linalg.lstsq(B, np.asarray(r, float), rcond=None)[0]
-    if np.all(np.isfinite(coef)) and coef[0] > 0 and coef[1] > 0:
-        return {"fold_amplitude": float(coef[0]), "fold_height_ratio": float(np.clip(coef[1] / coef[0], 0.0, 20.0)),
-                "fold_spacing": P, "fold_width": w, "fold_phase": ph}
+    # folds of two heights: the scan may lock onto the large folds only (spacing 2s); try half the
+    # spacing too, and fit the even and odd folds' heights by least squares on the two trains
+    rr = np.asarray(r, float)
+    choice = None
+    for PP, pp in ((P, ph), (P / 2, ph), (P / 2, ph - P / 2)):
+        if PP < lo * 0.99:
+            continue
+        ww = min(w, PP / 8)
+        tr = fold_train(pos, PP, ww, pp)
+        odd = odd_folds(pos, PP, pp)
+        B = np.stack([tr * (1 - odd), tr * odd, np.ones_like(tr)], axis=1)
+        coef, *_ = np.linalg.lstsq(B, rr, rcond=None)
+        if not (np.all(np.isfinite(coef)) and coef[0] > 0 and coef[1] >= 0):
+            continue
+        rss = float(np.sum((rr - B @ coef) ** 2))
+        if choice is None or rss < choice[0] * 0.98:  # the simpler (first) unless clearly better
+            choice = (rss, PP, ww, pp, float(coef[0]), float(coef[1] / coef[0]))
+    if choice is not None:
+        _, P, w, ph, A, ratio = choice
+        return {"fold_amplitude": A, "fold_height_ratio": float(np.clip(ratio, 0.0, 20.0)), "fold_spacing": P,
+                "fold_width": w, "fold_phase": ph}
     return {"fold_amplitude": max(a, 1e-9), "fold_height_ratio": 1.0, "fold_spacing": P, "fold_width": w,
             "fold_phase": ph}
 

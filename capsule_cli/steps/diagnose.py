@@ -196,9 +196,6 @@ def diagnose_table(model: Model, df: pd.DataFrame, kind: str, where: str = "", k
             cands.append(c)
     flexible = min([base] + [c.ev for c in cands], key=lambda e: e.rss)
     corr = serial_correlation(df, flexible.resid, covs)
-    if corr and any(s["test"] == "periodogram" and s["p_adjusted"] < ALPHA_STRUCTURE
-                    for s in structure_tests(df, flexible.resid, covs, correlation=corr)):
-        corr = None  # a period above the correlated-noise background: structure, not correlated noise
     noise = correct_for_correlation(noise, corr)
     sigma = noise["sd"]
     struct = structure_tests(df, base.resid, covs, correlation=noise.get("correlated"))

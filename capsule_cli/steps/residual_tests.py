@@ -120,7 +120,8 @@ def lomb_scargle(x, r, n_freq_max: int = 4000, rho: float = 0.0) -> tuple[float,
     Frequencies from 2 cycles over the span up to the mean-spacing Nyquist limit,
     oversampled 5 times. With ``rho`` > 0 (AR(1) noise of lag-1 correlation rho at the mean
     spacing) each frequency's power is divided by the red-noise spectrum
-    (1 - rho^2) / (1 - 2 rho cos(2 pi f dx) + rho^2) before the false-alarm probability.
+    (1 - rho^2) / (1 - 2 rho cos(2 pi f dx) + rho^2), floored at the white level 1, before the
+    false-alarm probability (exponential law of the periodogram over its expected value).
     """
     x = np.asarray(x, float)
     r = np.asarray(r, float)
@@ -146,15 +147,21 @@ def lomb_scargle(x, r, n_freq_max: int = 4000, rho: float = 0.0) -> tuple[float,
     c, s = np.cos(arg), np.sin(arg)
     with np.errstate(invalid="ignore", divide="ignore"):
         P = 0.5 * ((c @ y) ** 2 / np.sum(c * c, axis=1) + (s @ y) ** 2 / np.sum(s * s, axis=1))
-    p = 2.0 * P / yy
+    M = max(1.0, T * (fmax - fmin))
     if rho > 0:
-        red = (1 - rho * rho) / (1 - 2 * rho * np.cos(2 * np.pi * f * dx) + rho * rho)
-        p = p / red
-    p = np.clip(p, 0.0, 1.0)
+        # power over the AR(1) spectrum (mean 1) in units of the variance: exponential under the null
+        # never below the white level: leakage from the strong low frequencies would otherwise pass for
+        # a period at high frequencies, where the AR(1) spectrum is tiny
+        red = np.maximum((1 - rho * rho) / (1 - 2 * rho * np.cos(2 * np.pi * f * dx) + rho * rho), 1.0)
+        zr = P / (yy / n) / red
+        k = int(np.nanargmax(zr))
+        single = float(np.exp(-zr[k]))
+        fap = float(-np.expm1(M * np.log1p(-min(single, 1 - 1e-16)))) if single > 0 else 0.0
+        return float(2.0 * P[k] / yy), min(max(fap, 0.0), 1.0), float(1.0 / f[k])
+    p = np.clip(2.0 * P / yy, 0.0, 1.0)
     k = int(np.nanargmax(p))
     z = float(p[k])
     single = (1.0 - z) ** (0.5 * (n - 3))
-    M = max(1.0, T * (fmax - fmin))
     fap = float(-np.expm1(M * np.log1p(-min(single, 1 - 1e-16)))) if single > 0 else 0.0
     return z, min(max(fap, 0.0), 1.0), float(1.0 / f[k])
 
@@ -170,7 +177,7 @@ def structure_tests(df: pd.DataFrame, residual: np.ndarray, covariates: list[str
     """
     out = []
     r = np.asarray(residual, float)
-    rho = correlation["rho"] if correlation else 0.0
+    ar1 = correlation["rho"] if correlation else 0.0
     for col in covariates:
         x = df[col].to_numpy(dtype=float)
         if np.unique(x).size < 2:
@@ -188,7 +195,7 @@ def structure_tests(df: pd.DataFrame, residual: np.ndarray, covariates: list[str
             out.append({"covariate": col, "test": "runs", "statistic": z, "p_value": p,
                         "periodic_period": None, "method": "Wald-Wolfowitz runs of residual signs (one-sided)"})
         if is_ordered(col):
-            power, p, period = lomb_scargle(x, r, rho=rho)
+            power, p, period = lomb_scargle(x, r, rho=ar1)
             if np.isfinite(p):
                 out.append({"covariate": col, "test": "periodogram", "statistic": power, "p_value": p,
                             "periodic_period": period, "method": "Lomb-Scargle, false-alarm probability"})
@@ -197,7 +204,7 @@ def structure_tests(df: pd.DataFrame, residual: np.ndarray, covariates: list[str
         rec["p_adjusted"] = min(1.0, rec["p_value"] * m)
         rec["serial"] = bool(correlation) and is_ordered(rec["covariate"]) and rec["test"] != "periodogram"
         if correlation and is_ordered(rec["covariate"]) and rec["test"] == "periodogram":
-            rec["method"] += f" against AR(1) red noise (rho = {rho:.2f})"
+            rec["method"] += f" against AR(1) red noise (rho = {ar1:.2f})"
     return out
 
 
@@ -247,29 +254,38 @@ def _robust_scale(z: np.ndarray) -> float:
 
 
 def _replicate_noise(y: np.ndarray, g: np.ndarray) -> tuple[float, int, np.ndarray]:
-    """Return (pooled SD, dof, outlier mask) at replicate groups, outliers flagged by leave-one-out z."""
+    """Return (pooled SD, dof, outlier mask) at replicate groups, outliers flagged by leave-one-out z.
+
+    The first scale is the MAD of the leave-one-out deviations (robust to a few outliers); then the pooled
+    SD of the rows kept, iterated until the flags settle.
+    """
     out = np.zeros(y.size, bool)
     sd = float("nan")
-    for _ in range(4):
-        keep = ~out
+
+    def pooled(keep):
         cnt = np.bincount(g[keep], minlength=g.max() + 1).astype(float)
         tot = np.bincount(g[keep], weights=y[keep], minlength=g.max() + 1)
+        mean = np.where(cnt > 0, tot / np.maximum(cnt, 1), 0.0)
+        dof = int(np.sum(np.maximum(cnt - 1, 0)))
+        ss = float(np.sum(((y - mean[g]) ** 2)[keep & (cnt[g] >= 2)]))
+        return (math.sqrt(ss / dof) if dof > 0 else float("nan")), dof, cnt, tot
+
+    for it in range(6):
+        keep = ~out
+        _, dof, cnt, tot = pooled(keep)
         c = cnt[g]
         with np.errstate(invalid="ignore", divide="ignore"):
-            loo = np.where(c - keep > 0, (tot[g] - np.where(keep, y, 0.0)) / (c - keep), np.nan)
-            scale = np.sqrt(1.0 + 1.0 / (c - keep))
-        d = (y - loo) / scale
-        ok = keep & np.isfinite(d) & (c >= 2)
-        if not np.isfinite(sd):
-            sd = _robust_scale(d[ok])
-        dof = int(np.sum(np.maximum(cnt - 1, 0)))
+            m = c - keep  # kept rows of the group other than this one
+            loo = np.where(m > 0, (tot[g] - np.where(keep, y, 0.0)) / m, np.nan)
+            d = (y - loo) / np.sqrt(1.0 + 1.0 / m)
+        if it == 0:
+            sd = _robust_scale(d[np.isfinite(d)])
         new = np.isfinite(d) & (np.abs(d) > outlier_threshold(y.size) * sd)
-        mean = np.where(cnt > 0, tot / np.maximum(cnt, 1), 0.0)
-        ss = float(np.sum(((y - mean[g]) ** 2)[keep & (cnt[g] >= 2)]))
-        sd = math.sqrt(ss / dof) if dof > 0 else float("nan")
         if np.array_equal(new, out):
             break
         out = new
+        sd = pooled(~out)[0]
+    sd, dof, _, _ = pooled(~out)
     return sd, dof, out
 
 
@@ -336,8 +352,12 @@ def serial_correlation(df: pd.DataFrame, residual: np.ndarray, covariates: list[
         order, seg = record_order(df, c)
         rho, p = lag1_correlation(residual, order, seg)
         if np.isfinite(p) and p < alpha / max(1, sum(map(is_ordered, covariates))) and rho > 0:
+            # the lag-1 sample correlation of a short record is biased low: E[r1] = rho - (1 + 4 rho)/n
+            # (Kendall 1954, Biometrika 41, 403), corrected so that the red-noise background is not too flat
+            rho_c = rho + (1 + 4 * rho) / max(len(residual), 1)
             if best is None or p < best["p_value"]:
-                best = {"covariate": c, "rho": min(rho, 0.95), "p_value": p, "_order": order, "_segment": seg}
+                best = {"covariate": c, "rho": float(min(rho_c, 0.95)), "p_value": p, "_order": order,
+                        "_segment": seg}
     return best
 
 
