@@ -252,6 +252,8 @@ def metrics(ev: Evaluation, noise: dict, data_path: str, dhash: str, k_folds: in
         "cv": {"folds": int(np.unique(ev.folds).size), "requested_folds": k_folds, "groups": group_how,
                "n_groups": int(np.unique(ev.groups).size)},
         "noise_sd": noise["sd"], "noise_sd_se": noise["se"], "noise_method": noise["method"],
+        "noise_reliable": bool(noise.get("reliable", True)),
+        "noise_outlier_rows": [int(i) for i in noise.get("outliers", [])],
         "cv_rmse_over_noise": ev.cv_rmse / noise["sd"] if noise["sd"] and noise["sd"] > 0 else None,
         "aic": ev.aic, "bic": ev.bic,
         "params": param_table(ev),
