@@ -344,9 +344,9 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
     corr_txt = ""
     if noise.correlated:
         cc = noise.correlated
-        corr_txt = (f"; the noise is serially correlated along {cc['covariate']} (lag-1 correlation "
-                    f"{cc['rho']:.2f}): successive readings are not independent, so periodic-looking wiggles are "
-                    "expected from the noise alone and were tested against that background")
+        corr_txt = (f"; successive residuals along {cc['covariate']} are correlated (lag-1 correlation "
+                    f"{cc['rho']:.2f}): correlated sensor noise or structure no model tried describes; periods and "
+                    "candidates were tested against that correlated background")
 
     sup = [(t, c) for t, c in zip(tests, candidates) if t.supported]
     if sup:
