@@ -13,11 +13,10 @@ import pytest
 from capsule_cli.cli import main
 from capsule_cli.effects.model import build_model
 from capsule_cli.fitting import fit_least_squares
-from capsule_cli.steps.compare import run_compare
 from capsule_cli.steps.diagnose import diagnose_table, run_diagnose
 from capsule_cli.steps.residual_tests import noise_estimate
 from capsule_cli.steps.synth import synthesize
-from capsule_cli.tables import provenance, read_measurements, write_measurements
+from capsule_cli.tables import read_measurements
 
 from test_diagnose import COULOMB_FREE, SP, fr, loop, mk
 
