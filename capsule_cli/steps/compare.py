@@ -84,9 +84,9 @@ def evaluate(bound: BoundModel, folds: np.ndarray, groups: np.ndarray, x0=None, 
     pred = bound.predict(theta)
     if not np.all(np.isfinite(pred)):
         i = int(np.argmax(~np.isfinite(pred)))
+        covs = [c for c in bound.df.columns if c != bound.response and pd.api.types.is_numeric_dtype(bound.df[c])]
         raise InputError(f"{bound.where or 'data'}: row {i + 1}: model '{bound.model.name}' gives a non-finite "
-                         f"response there (its covariates: "
-                         f"{', '.join(f'{c}={bound.df[c].iloc[i]}' for c in bound.df.columns if c != bound.response and pd.api.types.is_numeric_dtype(bound.df[c]))})")
+                         f"response there ({', '.join(f'{c}={bound.df[c].iloc[i]}' for c in covs)})")
     cv_pred = np.empty_like(y)
     for f in np.unique(folds):
         test = np.flatnonzero(folds == f)

@@ -27,9 +27,10 @@ from . import crossval
 from .compare import (CURVE_SCHEMA, Evaluation, data_hash, evaluate, fit_curves, fit_warnings, main_covariate,
                       param_table,
                       residual_frame, residual_schema)
-from .residual_tests import (correct_for_correlation, is_ordered, noise_estimate, numeric_covariates, serial_correlation,
-                             structure_tests)
-from .verdict import ALPHA_EFFECT, ALPHA_STRUCTURE, RULE_TEXT, collinear_groups, FitSummary, Noise, Verdict, decide_verdict
+from .residual_tests import (correct_for_correlation, is_ordered, noise_estimate, numeric_covariates,
+                             serial_correlation, structure_tests)
+from .verdict import (ALPHA_EFFECT, ALPHA_STRUCTURE, RULE_TEXT, FitSummary, Noise, Verdict, collinear_groups,
+                      decide_verdict)
 
 ALPHA = ALPHA_STRUCTURE
 CANDIDATE_STARTS = 3  # effects with a data-based guess
@@ -362,7 +363,8 @@ def diagnosis_markdown(r: dict, cands: list[Candidate], base: Evaluation, winner
               "| --- | --- | --- | --- | --- | --- | --- |"]
     for c in cands:
         lines.append(f"| {c.effect.name} | {_fmt(c.ev.cv_rmse)} ± {_fmt(c.ev.cv_rmse_se)} | "
-                     f"{_fmt(-c.delta_cv)} ± {_fmt(c.delta_cv_se)} | {c.p_value:.2g} | {c.delta_bic:.1f} | {len(c.ev.bound.free)} | "
+                     f"{_fmt(-c.delta_cv)} ± {_fmt(c.delta_cv_se)} | {c.p_value:.2g} | {c.delta_bic:.1f} | "
+                     f"{len(c.ev.bound.free)} | "
                      f"{c.reason} |")
     if not cands:
         lines.append("| (no applicable candidate: the table lacks the covariates they need) | | | | | | |")

@@ -73,7 +73,8 @@ RULE_TEXT = (
     "near-equal alternatives; candidates with a parameter at its bound only if no other passes). If structure remains "
     "against the winner's own covariate it is named as a partial step when it removes at least "
     f"{100 * PARTIAL_SHARE:g} % of the held-out error above the noise and what remains is not periodic; otherwise "
-    "its form does not fit and the covariate is named (an effect that is not built in, with its period). With no candidate named, residual "
+    "its form does not fit and the covariate is named (an effect that is not built in, with its period). "
+    "With no candidate named, residual "
     "structure (trend, lack of fit, runs, periodogram; serial correlation of the noise along time/position "
     f"allowed for; Bonferroni over all tests, family alpha = {ALPHA_STRUCTURE:g}) names the covariate an effect "
     "that is not built in depends on. Covariates collinear in the data (|r| >= "
@@ -391,7 +392,8 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
                                structure_used=left)
             per = _period(structure, s["covariate"], alpha_structure) if s["covariate"] in ordered else per
             ptxt = f" (period {_g(per)})" if per else ""
-            how = "leaves a periodic residual" if periodic else f"removes only {100 * share:.0f} % of the error above the noise"
+            how = ("leaves a periodic residual" if periodic else
+                   f"removes only {100 * share:.0f} % of the error above the noise")
             msg = (f"an effect that is not built in depends on {s['covariate']}{ptxt}: write a plugin. The closest "
                    f"built-in effect, {win.name}, {how} "
                    f"(held-out RMSE {_g(cv_base)} -> {_g(win.cv_rmse)} {unit}): structure remains against "
