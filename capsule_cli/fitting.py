@@ -4,7 +4,11 @@ behind ``friction fit``, ``relax fit`` and ``compare``.
 ``fit_least_squares`` runs :func:`scipy.optimize.least_squares` (trust-region
 reflective, bounds respected) from several deterministic starting points and
 keeps the best optimum; parameter 95 % intervals come from the Gauss-Newton
-covariance s^2 (J^T J)^+ with Student-t quantiles on n - k degrees of freedom;
+covariance s^2 (J^T J)^+ with Student-t quantiles on n - k degrees of freedom,
+cut at the parameter's bounds (a value outside them is impossible); parameters
+that end at a bound are listed (``at_bound``), and parameters whose interval is
+more than ``DEGENERATE_CI_RATIO`` times their value wide, or not finite, are
+flagged ``degenerate`` (the data do not determine them: not a result);
 ``prediction_band`` propagates that covariance to the fitted curve (delta
 method). Information criteria use the Gaussian log-likelihood.
 """
@@ -15,6 +19,10 @@ from typing import Callable, Sequence
 
 import numpy as np
 from scipy import optimize, stats
+
+
+#: a 95 % interval wider than this many times |value| marks a parameter the data do not determine
+DEGENERATE_CI_RATIO = 10.0
 
 
 @dataclass
@@ -39,11 +47,12 @@ class FitResult:
     message: str
     at_bound: list[str] = field(default_factory=list)
     starts_converged: int = 0
+    degenerate: list[str] = field(default_factory=list)
 
     def as_dict(self) -> dict:
-        """Return ``{name: {value, stderr, ci95: [lo, hi], at_bound}}`` for JSON."""
+        """Return ``{name: {value, stderr, ci95: [lo, hi], at_bound, degenerate}}`` for JSON."""
         return {n: {"value": float(v), "stderr": float(s), "ci95": [float(lo), float(hi)],
-                    "at_bound": n in self.at_bound}
+                    "at_bound": n in self.at_bound, "degenerate": n in self.degenerate}
                 for n, v, s, lo, hi in zip(self.names, self.values, self.stderr, self.ci_low, self.ci_high)}
 
 
@@ -176,8 +185,21 @@ def fit_least_squares(model: Callable[[np.ndarray], np.ndarray], y: np.ndarray, 
     at_bound = [nm for nm, v, lo, hi, sp in zip(names, p, lower, upper, span)
                 if (np.isfinite(lo) and v - lo <= 1e-6 * max(sp, abs(v), 1e-12))
                 or (np.isfinite(hi) and hi - v <= 1e-6 * max(sp, abs(v), 1e-12))]
-    return FitResult(list(names), p, se, p - tq * se, p + tq * se, cov, residuals, n, k, rss, r2, aic, bic,
-                     float(np.sqrt(rss / dof)), bool(best.success), str(best.message), at_bound, converged)
+    lo_ci = np.maximum(p - tq * se, lower)
+    hi_ci = np.minimum(p + tq * se, upper)
+    degenerate = degenerate_parameters(names, p, se, p - tq * se, p + tq * se)
+    return FitResult(list(names), p, se, lo_ci, hi_ci, cov, residuals, n, k, rss, r2, aic, bic,
+                     float(np.sqrt(rss / dof)), bool(best.success), str(best.message), at_bound, converged,
+                     degenerate)
+
+
+def degenerate_parameters(names, values, stderr, ci_low, ci_high, ratio: float = DEGENERATE_CI_RATIO) -> list[str]:
+    """Return the names whose (unclipped) interval is not finite or wider than ``ratio`` x |value|."""
+    out = []
+    for nm, v, s, lo, hi in zip(names, values, stderr, ci_low, ci_high):
+        if not (np.isfinite(s) and np.isfinite(lo) and np.isfinite(hi)) or (hi - lo) > ratio * abs(v):
+            out.append(nm)
+    return out
 
 
 def jacobian_fd(fun: Callable[[np.ndarray], np.ndarray], p: np.ndarray, rel_step: float = 1e-6) -> np.ndarray:

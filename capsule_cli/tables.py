@@ -9,6 +9,7 @@ into the schema metadata under the key ``capsule_cli``.
 from __future__ import annotations
 
 import contextlib
+import io
 import json
 import os
 import subprocess
@@ -288,12 +289,65 @@ def infer_kind(columns: Iterable[str]) -> str | None:
     return None
 
 
+#: covariates for which +inf is a value (a flat, cut-open intestine; a straight tube)
+INFINITE_OK = {"Ri", "bend_radius"}
+#: the ``statistic`` values the built-in models of a kind predict (friction: trial averages only)
+SUPPORTED_STATISTICS = {"friction": ("avg",), "pressure": ("avg", "max")}
+
+
+def read_csv_with_comments(path: Path) -> pd.DataFrame:
+    """Return a CSV table whose full-line ``#`` comments (citations, notes) are skipped."""
+    with open(path, encoding="utf-8") as fh:
+        lines = [ln for ln in fh if not ln.lstrip().startswith("#")]
+    if not "".join(lines).strip():
+        raise pd.errors.EmptyDataError("no data")
+    return pd.read_csv(io.StringIO("".join(lines)))
+
+
+def text_label_columns(df: pd.DataFrame) -> list[str]:
+    """Return columns without a unit suffix whose every non-empty cell is text (not a number): notes such as
+    ``source_type``; they label rows and take no part in any model."""
+    out = []
+    for col in df.columns:
+        if col in LABEL_COLUMNS or col in DIMENSIONLESS_COLUMNS or split_unit(col)[1] is not None:
+            continue
+        vals = df[col].dropna()
+        if len(vals) and pd.to_numeric(vals, errors="coerce").isna().all():
+            out.append(col)
+    return out
+
+
+def incomplete_rows(df: pd.DataFrame, numeric: list[str]) -> np.ndarray:
+    """Return a mask of rows with an empty cell in a numeric column (a value not stated)."""
+    if not numeric:
+        return np.zeros(len(df), bool)
+    return df[numeric].isna().to_numpy().any(axis=1)
+
+
+def unsupported_statistic_rows(df: pd.DataFrame, kind: str) -> np.ndarray:
+    """Return a mask of rows whose ``statistic`` (avg, max, min, peak ...) the kind's models do not predict."""
+    if "statistic" not in df.columns:
+        return np.zeros(len(df), bool)
+    ok = SUPPORTED_STATISTICS.get(kind)
+    if ok is None:
+        return np.zeros(len(df), bool)
+    return ~df["statistic"].astype(str).str.strip().str.lower().isin(ok).to_numpy()
+
+
 def _fail(path, msg):
     raise InputError(f"{path}: {msg}")
 
 
-def read_measurements(path: str | os.PathLike, kind: str | None = None) -> tuple[pd.DataFrame, str]:
+def read_measurements(path: str | os.PathLike, kind: str | None = None,
+                      drop_incomplete: bool = False) -> tuple[pd.DataFrame, str]:
     """Return ``(table, kind)`` of a validated measurement table (CSV or Parquet).
+
+    Full-line ``#`` comments are skipped; text columns without a unit suffix are row labels
+    (:func:`text_label_columns`); ``Ri_mm``/``bend_radius_mm`` may be ``inf``. With ``drop_incomplete``
+    (published summary tables such as configs/reference/), columns that are empty throughout, rows with an
+    empty numeric cell and rows whose ``statistic`` the kind's models do not predict are left out and listed
+    in ``df.attrs['dropped_rows']`` ({row, reason}, 1-based data rows; {column, reason} for optional
+    covariates not stated in every row, whose column goes); otherwise they are errors.
 
     Columns are renamed/converted to the canonical units of contract section 3
     (``speed_m_s`` becomes ``speed_mm_s``); extra covariates must carry a known
@@ -305,7 +359,7 @@ def read_measurements(path: str | os.PathLike, kind: str | None = None) -> tuple
         _fail(p, "file not found")
     try:
         if p.suffix.lower() == ".csv":
-            df = pd.read_csv(p)
+            df = read_csv_with_comments(p)
         elif p.suffix.lower() in (".parquet", ".pq"):
             df = pq.read_table(p).to_pandas()
         else:
@@ -319,8 +373,12 @@ def read_measurements(path: str | os.PathLike, kind: str | None = None) -> tuple
     if df.shape[0] == 0:
         _fail(p, "empty table (no rows)")
     df.columns = check_column_names(p, df.columns)
+    dropped: list[dict] = []
+    if drop_incomplete:
+        df = df.dropna(axis=1, how="all")
+    texts = text_label_columns(df)
     for col in df.columns:  # every non-label column must carry a known unit suffix
-        if col in LABEL_COLUMNS or col in DIMENSIONLESS_COLUMNS or split_unit(col)[1] is not None:
+        if col in LABEL_COLUMNS or col in texts or col in DIMENSIONLESS_COLUMNS or split_unit(col)[1] is not None:
             continue
         if "_" in col:
             _fail(p, f"column '{col}': unknown unit suffix '{col.rsplit('_', 1)[-1]}' "
@@ -342,7 +400,7 @@ def read_measurements(path: str | os.PathLike, kind: str | None = None) -> tuple
 
     rename, numeric = {}, []
     for col in df.columns:
-        if col in LABEL_COLUMNS:
+        if col in LABEL_COLUMNS or col in texts:
             continue
         base, suffix = split_unit(col)
         target = canon_by_base.get(base) if suffix else None
@@ -360,6 +418,27 @@ def read_measurements(path: str | os.PathLike, kind: str | None = None) -> tuple
         _fail(p, f"missing column '{missing[0]}' for a {kind} table (required: "
                  f"{', '.join(spec['required'])})")
 
+    if drop_incomplete:
+        # a covariate not stated for every row cannot be used: its column goes; rows missing a required value go
+        part = [c for c in numeric if c not in spec["required"] and df[c].isna().any()]
+        for c in part:
+            dropped.append({"column": c, "reason": f"column '{c}' is empty in {int(df[c].isna().sum())} rows"})
+        df = df.drop(columns=part)
+        numeric = [c for c in numeric if c not in part]
+        bad = incomplete_rows(df, numeric) | unsupported_statistic_rows(df, kind)
+        for i in np.flatnonzero(bad):
+            why = ("an empty numeric cell" if incomplete_rows(df.iloc[[i]], numeric)[0] else
+                   f"statistic '{df['statistic'].iloc[i]}' (the {kind} models predict "
+                   f"{', '.join(SUPPORTED_STATISTICS[kind])})")
+            dropped.append({"row": int(i) + 1, "reason": why})
+        dropped = [d for d in dropped if "column" in d] + [d for d in dropped if "row" in d]
+        df = df.loc[~bad].reset_index(drop=True)
+        if df.empty:
+            _fail(p, "no complete rows left (every row has an empty numeric cell or an unsupported statistic)")
+    elif unsupported_statistic_rows(df, kind).any():
+        i = int(np.argmax(unsupported_statistic_rows(df, kind)))
+        _fail(p, f"column 'statistic' row {i + 1}: '{df['statistic'].iloc[i]}' is not predicted by the {kind} "
+                 f"models ({', '.join(SUPPORTED_STATISTICS[kind])}); leave such rows out (--drop-incomplete)")
     for col in numeric:
         df[col] = numeric_column(p, col, df[col])
     for col, target in rename.items():
@@ -370,6 +449,8 @@ def read_measurements(path: str | os.PathLike, kind: str | None = None) -> tuple
             _fail(p, f"column '{col}' row {i + 1}: missing label")
     df.attrs["source_path"] = str(p)
     df.attrs["kind"] = kind
+    df.attrs["dropped_rows"] = dropped
+    df.attrs["text_labels"] = texts
     df.attrs["provenance"] = _measurement_provenance(p)
     return df, kind
 
@@ -421,8 +502,10 @@ def numeric_column(path, col: str, raw: pd.Series) -> np.ndarray:
     if np.isnan(vals).any():
         i = int(np.argmax(np.isnan(vals)))
         _fail(path, f"column '{col}' row {i + 1}: missing value (NaN)")
-    if not np.isfinite(vals).all():
-        i = int(np.argmax(~np.isfinite(vals)))
+    # +inf is a physical value for some columns (a flat intestine: R_i = inf, seed 003 Case 1)
+    ok = np.isfinite(vals) | ((vals == np.inf) & (split_unit(col)[0] in INFINITE_OK))
+    if not ok.all():
+        i = int(np.argmax(~ok))
         _fail(path, f"column '{col}' row {i + 1}: {_short(raw.iloc[i])} is infinite or too large for a "
                     "64-bit float")
     base = split_unit(col)[0]

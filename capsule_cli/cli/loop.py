@@ -25,13 +25,22 @@ def _load(model_path: Path, plugins: Optional[List[Path]]):
     return build_model(model_path)
 
 
-def _data(data: Path, model, kind: Optional[str]):
+DROP = typer.Option(False, "--drop-incomplete", help="Leave out (and list) rows with an empty numeric cell "
+                    "or a statistic the models do not predict, and columns empty throughout: published summary "
+                    "tables such as configs/reference/*.csv.")
+
+
+def _data(data: Path, model, kind: Optional[str], drop_incomplete: bool = False):
     from ..tables import read_measurements
 
     k = kind or model.kind
     if k != model.kind:
         raise InputError(f"{model.path}: a {model.kind} model cannot be compared with a {k} table")
-    return read_measurements(data, kind=k)
+    df, k = read_measurements(data, kind=k, drop_incomplete=drop_incomplete)
+    for d in df.attrs.get("dropped_rows", []):
+        what = f"row {d['row']}" if "row" in d else f"column '{d['column']}'"
+        typer.echo(f"capsule-cli: note: {data}: {what} left out ({d['reason']})", err=True)
+    return df, k
 
 
 def register(app: typer.Typer) -> None:
@@ -86,6 +95,7 @@ def register(app: typer.Typer) -> None:
         folds: int = FOLDS,
         seed: int = SEED,
         plugins: Optional[List[Path]] = PLUGINS,
+        drop_incomplete: bool = DROP,
         quiet: bool = QUIET,
     ):
         """Calibrate a model's free parameters on measurements; error metrics (held-out RMSE, noise), figures, ledger row."""
@@ -93,7 +103,7 @@ def register(app: typer.Typer) -> None:
         from ..steps.compare import run_compare
 
         m = _load(model, plugins)
-        df, k = _data(data, m, kind)
+        df, k = _data(data, m, kind, drop_incomplete)
         met = run_compare(m, df, k, str(data), out, ledger, folds, seed)
         if not quiet:
             typer.echo(f"{m.name}: n={met['n']} rmse={met['rmse']:.4g} cv_rmse={met['cv_rmse']:.4g}"
@@ -112,14 +122,15 @@ def register(app: typer.Typer) -> None:
         folds: int = FOLDS,
         seed: int = SEED,
         plugins: Optional[List[Path]] = PLUGINS,
+        drop_incomplete: bool = DROP,
         quiet: bool = QUIET,
     ):
-        """Where the model fails and which physical effect is missing, ranked by held-out error and BIC."""
+        """Where the model fails and which physical effect is missing: a verdict by a rule fixed in advance (F test, held-out error)."""
         check_outputs(folder=out, write_model=write_model)  # before any work (exit 2 naming the path)
         from ..steps.diagnose import run_diagnose
 
         m = _load(model, plugins)
-        df, k = _data(data, m, kind)
+        df, k = _data(data, m, kind, drop_incomplete)
         r = run_diagnose(m, df, k, str(data), out, write_model, folds, seed, add_best=add_best, quiet=quiet)
         if write_model is not None and r["verdict"]["missing_effect"] is None and not add_best:
             typer.echo(f"capsule-cli: note: no effect named; {write_model} is the model unchanged", err=True)

@@ -162,8 +162,18 @@ def fold_train(position_m, spacing_m, width_m, phase_m):
     return np.exp(-0.5 * (d / w) ** 2)
 
 
+def odd_folds(position_m, spacing_m, phase_m):
+    """Return 1.0 where the nearest fold is an odd one (k = 1, 3, ... counted from the fold at the phase), else 0."""
+    x = np.asarray(position_m, float)
+    P = max(float(spacing_m), 1e-12)
+    k = np.floor((x - float(phase_m)) / P + 0.5)
+    return np.mod(k, 2.0)
+
+
 def _folds(y, x, p, ctx):
-    return y + p["fold_amplitude"] * fold_train(x["position"], p["fold_spacing"], p["fold_width"], p["fold_phase"])
+    train = fold_train(x["position"], p["fold_spacing"], p["fold_width"], p["fold_phase"])
+    odd = odd_folds(x["position"], p["fold_spacing"], p["fold_phase"])
+    return y + p["fold_amplitude"] * (1.0 + (p["fold_height_ratio"] - 1.0) * odd) * train
 
 
 def _folds_guess(r, x, ctx):
@@ -190,17 +200,43 @@ def _folds_guess(r, x, ctx):
             if red[j] > best[0]:
                 best = (float(red[j]), float(P), float(w), float(phases[j]), float(a[j]))
     _, P, w, ph, a = best
-    return {"fold_amplitude": max(a, 1e-9), "fold_spacing": P, "fold_width": w, "fold_phase": ph}
+    # folds of two heights: the scan may lock onto the large folds only (spacing 2s); try half the
+    # spacing too, and fit the even and odd folds' heights by least squares on the two trains
+    rr = np.asarray(r, float)
+    choice = None
+    for PP, pp in ((P, ph), (P / 2, ph), (P / 2, ph - P / 2)):
+        if PP < lo * 0.99:
+            continue
+        ww = min(w, PP / 8)
+        tr = fold_train(pos, PP, ww, pp)
+        odd = odd_folds(pos, PP, pp)
+        B = np.stack([tr * (1 - odd), tr * odd, np.ones_like(tr)], axis=1)
+        coef, *_ = np.linalg.lstsq(B, rr, rcond=None)
+        if not (np.all(np.isfinite(coef)) and coef[0] > 0 and coef[1] >= 0):
+            continue
+        rss = float(np.sum((rr - B @ coef) ** 2))
+        if choice is None or rss < choice[0] * 0.98:  # the simpler (first) unless clearly better
+            choice = (rss, PP, ww, pp, float(coef[0]), float(coef[1] / coef[0]))
+    if choice is not None:
+        _, P, w, ph, A, ratio = choice
+        return {"fold_amplitude": A, "fold_height_ratio": float(np.clip(ratio, 0.0, 20.0)), "fold_spacing": P,
+                "fold_width": w, "fold_phase": ph}
+    return {"fold_amplitude": max(a, 1e-9), "fold_height_ratio": 1.0, "fold_spacing": P, "fold_width": w,
+            "fold_phase": ph}
 
 
 register_effect(Effect(
     name="circular_folds", kind=KIND,
     description="Circular folds of the mucosa: friction peaks each time the capsule climbs a fold, "
-                "F += A sum_k exp(-(x - x0 - k s)^2 / (2 w^2)) over position x (fold spacing s, peak width w "
-                "<= s/8, first fold x0). Seed 000 Case 2: folds 1.67-2.34 mm high, 3.1-3.3 mm wide, 50 mm apart; "
-                "peaks 37.5 and 88.2 mN over 15.6 mN between folds.",
+                "F += sum_k A_k exp(-(x - x0 - k s)^2 / (2 w^2)) over position x (fold spacing s, peak width w "
+                "<= s/8, fold k = 0 at x0), with A_k = A for even folds and r A for odd ones (folds of two "
+                "heights alternate; r = 1: all alike). Seed 000 Case 2: folds 1.67-2.34 mm high, 3.1-3.3 mm "
+                "wide, 50 mm apart; a small and a large fold, peaks 37.5 and 88.2 mN over 15.6 mN between folds "
+                "(A = 21.9 mN, r = 3.32).",
     source="seed 000 section 4.2 (Fig 11)",
-    params=(Param("fold_amplitude_mN", 20.0, (0.0, 1e5), 0.0, description="peak friction above the base"),
+    params=(Param("fold_amplitude_mN", 20.0, (0.0, 1e5), 0.0, description="peak friction of even folds above the base"),
+            Param("fold_height_ratio", 1.0, (0.0, 20.0), 1.0,
+                  description="peak of odd folds over peak of even folds (folds of two heights; 1: all alike)"),
             Param("fold_spacing_mm", 50.0, (10.0, 1000.0), 50.0, description="distance between folds s"),
             Param("fold_width_mm", 3.0, (0.3, 100.0), 3.0, description="peak width w (Gaussian sigma)"),
             Param("fold_phase_mm", 0.0, (-1000.0, 1000.0), 0.0, description="position x0 of a fold")),

@@ -249,6 +249,10 @@ class BoundModel:
         self.free = [s for s in m.specs if s.free and s.key not in self.column_keys]
         self._consts = capsule_constants()
         self._unit = unit_factor(self.response)
+        # SI factors once at binding, not inside every prediction (the fits call predict thousands of times)
+        self._by_owner: dict[str, list[tuple[ParamSpec, str, float]]] = {}
+        for s in m.specs:
+            self._by_owner.setdefault(s.owner, []).append((s, s.si_key, si_factor(s.param.name)))
 
     @property
     def n(self) -> int:
@@ -279,14 +283,12 @@ class BoundModel:
 
     def _params_si(self, vals: Mapping[str, float], owner: str, rows: np.ndarray | None) -> dict:
         out = {}
-        for s in self.model.specs:
-            if s.owner != owner:
-                continue
+        for s, key, f in self._by_owner.get(owner, ()):
             if s.key in self.column_keys:
                 v = self.df[s.param.name].to_numpy(dtype=float)
-                out[s.si_key] = s.to_si(v if rows is None else v[rows])
+                out[key] = (v if rows is None else v[rows]) * f
             else:
-                out[s.si_key] = s.to_si(vals[s.key])
+                out[key] = vals[s.key] * f
         return out
 
     def predict_si(self, theta=None, rows: np.ndarray | None = None, upto: int | None = None,

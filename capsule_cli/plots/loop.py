@@ -254,9 +254,12 @@ def plot_ledger(hist: pd.DataFrame, path: str | Path, title: str = "") -> Path:
     unit = str(hist["unit"].iloc[-1])
     noise = float(hist["noise_sd"].iloc[-1])
     nse = float(hist["noise_sd_se"].iloc[-1]) if "noise_sd_se" in hist else 0.0
+    # without replicates or enough points the "noise" is the data's own spread: only an upper bound
+    spread = "noise_method" in hist and str(hist["noise_method"].iloc[-1]).startswith("no replicates and too few")
     if np.isfinite(noise):
         ax.axhspan(noise - nse, noise + nse, color=OKABE_ITO[2], alpha=0.2, lw=0,
-                   label=f"noise level {noise:.3g} ± {nse:.2g} {unit}")
+                   label=(f"data spread {noise:.3g} {unit} (upper bound on noise)" if spread else
+                          f"noise level {noise:.3g} ± {nse:.2g} {unit}"))
         ax.axhline(noise, color=OKABE_ITO[2], lw=0.8)
     ax.errorbar(x, hist["cv_rmse"], yerr=np.nan_to_num(hist["cv_rmse_se"].to_numpy(float)), fmt="o-",
                 color=OKABE_ITO[0], capsize=3, label="held-out RMSE (± SE)")

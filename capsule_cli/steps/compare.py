@@ -16,7 +16,8 @@ import numpy as np
 import pandas as pd
 
 from ..effects.model import BoundModel, Model
-from ..fitting import FitResult, fit_least_squares, information_criteria, prediction_band
+from ..errors import InputError
+from ..fitting import DEGENERATE_CI_RATIO, FitResult, fit_least_squares, information_criteria, prediction_band
 from ..tables import (Column, TableSchema, is_synthetic, provenance, response_column, write_json_atomic, write_table)
 from ..units import split_unit, unit_label
 from ..validation import check_model_output
@@ -83,6 +84,11 @@ def evaluate(bound: BoundModel, folds: np.ndarray, groups: np.ndarray, x0=None, 
     y = bound.observed()
     theta, fit = calibrate(bound, y, None, x0, n_starts, seed)
     pred = bound.predict(theta)
+    if not np.all(np.isfinite(pred)):
+        i = int(np.argmax(~np.isfinite(pred)))
+        covs = [c for c in bound.df.columns if c != bound.response and pd.api.types.is_numeric_dtype(bound.df[c])]
+        raise InputError(f"{bound.where or 'data'}: row {i + 1}: model '{bound.model.name}' gives a non-finite "
+                         f"response there ({', '.join(f'{c}={bound.df[c].iloc[i]}' for c in covs)})")
     cv_pred = np.empty_like(y)
     for f in np.unique(folds):
         test = np.flatnonzero(folds == f)
@@ -112,7 +118,11 @@ def main_covariate(df: pd.DataFrame, kind: str) -> str:
 
 
 def param_table(ev: Evaluation) -> dict:
-    """Return ``{key: {value, stderr, ci95, at_bound, unit, free}}`` for every model parameter."""
+    """Return ``{key: {value, stderr, ci95, at_bound, degenerate, unit, free}}`` for every model parameter.
+
+    ci95 lies inside the parameter's bounds; ``at_bound`` marks a value that ended at a bound (the model or
+    the bounds are often wrong then); ``degenerate`` one the data do not determine (see fitting.py).
+    """
     vals = ev.bound.values(ev.theta)
     fitted = ev.fit.as_dict() if ev.fit is not None else {}
     out = {}
@@ -122,9 +132,28 @@ def param_table(ev: Evaluation) -> dict:
             continue
         rec = {"value": vals[s.key], "free": s.key in fitted, "unit": s.param.unit, "owner": s.owner}
         if s.key in fitted:
-            rec.update({k: fitted[s.key][k] for k in ("stderr", "ci95", "at_bound")})
+            rec.update({k: fitted[s.key][k] for k in ("stderr", "ci95", "at_bound", "degenerate")})
             rec["bounds"] = list(s.bounds)
         out[s.key] = rec
+    return out
+
+
+def fit_warnings(params: dict) -> list[str]:
+    """Return one plain sentence per free parameter that ended at a bound or is degenerate."""
+    out = []
+    for k, p in params.items():
+        if not p.get("free"):
+            continue
+        u = f" {p['unit']}" if p.get("unit") else ""
+        if p.get("at_bound"):
+            lo, hi = p.get("bounds", [None, None])
+            out.append(f"{k} ended at its bound ({p['value']:.3g}{u}; bounds [{lo:g}, {hi:g}]): the model's form or "
+                       "the bounds are probably wrong")
+        if p.get("degenerate"):
+            ci = p.get("ci95") or [float("nan"), float("nan")]
+            out.append(f"{k} = {p['value']:.3g}{u} is not determined by the data (95 % interval [{ci[0]:.3g}, "
+                       f"{ci[1]:.3g}] spans more than {DEGENERATE_CI_RATIO:g} x its value): a degenerate fit, not a "
+                       "result")
     return out
 
 
@@ -225,9 +254,12 @@ def metrics(ev: Evaluation, noise: dict, data_path: str, dhash: str, k_folds: in
         "cv": {"folds": int(np.unique(ev.folds).size), "requested_folds": k_folds, "groups": group_how,
                "n_groups": int(np.unique(ev.groups).size)},
         "noise_sd": noise["sd"], "noise_sd_se": noise["se"], "noise_method": noise["method"],
+        "noise_reliable": bool(noise.get("reliable", True)),
+        "noise_outlier_rows": [int(i) for i in noise.get("outliers", [])],
         "cv_rmse_over_noise": ev.cv_rmse / noise["sd"] if noise["sd"] and noise["sd"] > 0 else None,
         "aic": ev.aic, "bic": ev.bic,
         "params": param_table(ev),
+        "fit_warnings": fit_warnings(param_table(ev)),
         "fit_converged": None if ev.fit is None else bool(ev.fit.success),
     }
 

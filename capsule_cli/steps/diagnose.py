@@ -1,30 +1,13 @@
 """Where a model fails and which physical effect is missing (``capsule-cli diagnose``).
 
-The rule, fixed in advance (also written into every diagnosis.md):
-
-1. Calibrate and cross-validate the model as is (grouped K-fold, :mod:`.crossval`);
-   estimate the noise SD sigma (:func:`.residual_tests.noise_estimate`).
-2. For every applicable effect not in the model (its covariates are in the table,
-   its base fits) refit model + effect, starting from data-based guesses, and
-   cross-validate on the same folds. Record the held-out RMSE, the paired
-   difference to the model with its standard error SE_d, and dBIC.
-3. A candidate *passes* when (a) its held-out RMSE improves on the model's by more
-   than max(2 SE_d, 0.05 sigma), (b) dBIC < -10 (very strong evidence, Kass &
-   Raftery 1995), and (c) the model's held-out RMSE exceeds sigma (skipped when
-   too few data allow no noise estimate; then "nothing is missing" is not claimed).
-4. Of the passing candidates the best (lowest held-out RMSE) is taken, unless a
-   simpler one (fewer free parameters) is within one paired SE of it: then the
-   simpler one.
-5. The winner's residuals are tested for structure (trend, lack of fit, runs,
-   periodogram; Bonferroni over all covariates and tests, family alpha = 0.01).
-   Structure left against one of the winner's own covariates means its form does
-   not fit what is missing: verdict ``missing_effect: null`` with that covariate
-   (and the period, for time or position) -- "write a plugin". Structure against
-   another covariate is reported with the winner (a second effect may be missing).
-6. No candidate passes: if the model's residuals show structure against some
-   covariate (same tests and alpha), the verdict names the covariate (and the
-   period for time/position): an effect that is not built in depends on it.
-   Otherwise: nothing is missing.
+Steps: calibrate and cross-validate the model as is (grouped K-fold, :mod:`.crossval`);
+estimate the noise (:func:`.residual_tests.noise_estimate`: robust, outliers flagged by
+row and left out of the fits, serial correlation along time/position detected); refit
+model + each applicable effect from data-based guesses on the same folds; test the
+residuals for structure. The verdict is decided by the pure function
+:func:`capsule_cli.steps.verdict.decide_verdict` from those arrays (its rule,
+:data:`~capsule_cli.steps.verdict.RULE_TEXT`, is fixed in advance and printed in every
+diagnosis.md); writing tables, figures and the new model come after, from its result.
 """
 from __future__ import annotations
 
@@ -42,26 +25,17 @@ from ..tables import (is_synthetic, provenance, response_column, write_json_atom
 from ..units import split_unit, unit_label
 from ..validation import check_model_output
 from . import crossval
-from .compare import (CURVE_SCHEMA, Evaluation, data_hash, evaluate, fit_curves, main_covariate, param_table,
+from .compare import (CURVE_SCHEMA, Evaluation, data_hash, evaluate, fit_curves, fit_warnings, main_covariate,
+                      param_table,
                       residual_frame, residual_schema)
-from .residual_tests import is_ordered, noise_estimate, numeric_covariates, structure_tests
+from .residual_tests import (correct_for_correlation, is_ordered, noise_estimate, numeric_covariates,
+                             serial_correlation, structure_tests)
+from .verdict import (ALPHA_EFFECT, ALPHA_STRUCTURE, RULE_TEXT, FitSummary, Noise, Verdict, collinear_groups,
+                      decide_verdict)
 
-ALPHA = 0.01
-BIC_THRESHOLD = -10.0
-MIN_GAIN_NOISE_FRACTION = 0.05
-SE_MULTIPLE = 2.0
+ALPHA = ALPHA_STRUCTURE
 CANDIDATE_STARTS = 3  # effects with a data-based guess
 PLAIN_STARTS = 8  # effects without one (plugins): more random starts within the bounds
-
-RULE_TEXT = (
-    "A candidate effect is named only if (a) it lowers the held-out RMSE by more than "
-    f"max({SE_MULTIPLE:g} x the standard error of the paired difference, {MIN_GAIN_NOISE_FRACTION:g} x the noise SD), "
-    f"(b) it lowers BIC by more than {-BIC_THRESHOLD:g}, and (c) the model's held-out RMSE exceeds the noise SD. "
-    "Among passing candidates a simpler one (fewer free parameters) within one paired standard error of the best "
-    "is preferred. If the winner leaves significant residual structure against one of its own covariates, its form "
-    "does not fit and no effect is named; the covariate is. With no passing candidate, residual structure "
-    f"(trend, lack of fit, runs, periodogram; Bonferroni over covariates and tests, family alpha = {ALPHA:g}) "
-    "names the covariate an effect that is not built in depends on; otherwise nothing is missing.")
 
 
 @dataclass
@@ -74,6 +48,33 @@ class Candidate:
     delta_bic: float
     passes: bool = False
     reason: str = ""
+    p_value: float = float("nan")
+    p_adjusted: float = float("nan")
+    structure: list = None
+
+
+def skipped_effects(model: Model, df: pd.DataFrame) -> list[dict]:
+    """Return the effects of the model's kind not tried, each {effect, reason}."""
+    have = set(model.effect_names)
+    cols = {base_name(c) for c in df.columns}
+    out = []
+    for e in all_effects(model.kind):
+        if e.name in have:
+            continue
+        if e.bases and model.base.name not in e.bases:
+            out.append({"effect": e.name, "reason": f"applies to base models {', '.join(e.bases)}, not "
+                                                    f"{model.base.name}"})
+            continue
+        miss = [c for c in e.covariates if base_name(c) not in cols]
+        if miss:
+            out.append({"effect": e.name, "reason": f"the table has no column {', '.join(miss)}"})
+            continue
+        const = [c for c in e.covariates if base_name(c) in cols
+                 and df[[x for x in df.columns if base_name(x) == base_name(c)][0]].nunique() < 2]
+        if const:
+            out.append({"effect": e.name, "reason": f"tried, but {', '.join(const)} takes one value in the table "
+                                                    "(the effect is a constant here)"})
+    return out
 
 
 def applicable_effects(model: Model, df: pd.DataFrame) -> list[Effect]:
@@ -124,15 +125,28 @@ def fit_candidate(model: Model, eff: Effect, df: pd.DataFrame, base: Evaluation,
     return Candidate(eff, m2, ev, d, se, ev.bic - base.bic)
 
 
-def _significant(struct: list[dict]) -> list[dict]:
-    return sorted([s for s in struct if s["p_adjusted"] < ALPHA], key=lambda s: s["p_value"])
+def summary(ev: Evaluation, name: str = "", covariates=(), structure=None) -> FitSummary:
+    """Return the arrays :func:`decide_verdict` needs from one evaluation."""
+    return FitSummary(name, len(ev.bound.free), ev.rss, ev.pred, ev.sq_err, tuple(covariates), structure or [])
 
 
-def _period_of(struct: list[dict], cov: str) -> float | None:
-    for s in struct:
-        if s["covariate"] == cov and s["test"] == "periodogram" and s["p_adjusted"] < ALPHA:
-            return float(s["periodic_period"])
-    return None
+def compute_verdict(df: pd.DataFrame, resp: str, base: Evaluation, cands: list[Candidate], noise: dict,
+                    covs: list[str], struct: list[dict], groups: np.ndarray, folds: np.ndarray) -> Verdict:
+    """Return the verdict from the evaluations (no files): structure of each candidate's residuals, then
+    :func:`decide_verdict`."""
+    sums = []
+    for c in cands:
+        if c.structure is None:
+            c.structure = structure_tests(df, c.ev.resid, covs, correlation=noise.get("correlated"))
+        own = [x for x in covs if base_name(x) in {base_name(e) for e in c.effect.covariates}]
+        sm = summary(c.ev, c.effect.name, own, c.structure)
+        sm.at_bound = tuple(k for k, p in param_table(c.ev).items()
+                            if p.get("owner") == c.effect.name and p.get("at_bound"))
+        sums.append(sm)
+    nz = Noise(noise["sd"], noise["se"], noise.get("reliable", True), noise["method"], noise.get("correlated"))
+    return decide_verdict(base.y, summary(base), sums, nz, {c: df[c].to_numpy(float) for c in covs}, struct,
+                          groups, int(np.unique(folds).size), ordered=[c for c in covs if is_ordered(c)],
+                          unit=unit_label(resp), response=split_unit(resp)[0])
 
 
 def _fmt(v: float, unit: str = "") -> str:
@@ -142,145 +156,90 @@ def _fmt(v: float, unit: str = "") -> str:
     return f"{s} {unit}".strip()
 
 
-def _direction(df, cov, resid) -> str:
-    from scipy import stats
+@dataclass
+class Diagnosis:
+    """What :func:`diagnose_table` found (no files written): the JSON record and the evaluations behind it."""
 
-    x = df[cov].to_numpy(float)
-    if np.unique(x).size < 3:
-        return "depends on"
-    rho = stats.spearmanr(x, resid)[0]
-    if rho > 0.3:
-        return "rises with"
-    if rho < -0.3:
-        return "falls with"
-    return "varies with"
+    result: dict
+    base: Evaluation
+    cands: list[Candidate]
+    winner: Candidate | None
+    winner_named: bool
+    covs: list[str]
+    df: pd.DataFrame  # the rows used (outliers left out)
 
 
-def run_diagnose(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_dir: str | Path,
-                 write_model: str | Path | None = None, k_folds: int = 5, seed: int = 0,
-                 add_best: bool = False, quiet: bool = True, figures: bool = True) -> dict:
-    """Diagnose ``model`` against the table; write diagnosis.json/.md, figures and optionally the new model."""
-    from ..plots import loop as plots
+def diagnose_table(model: Model, df: pd.DataFrame, kind: str, where: str = "", k_folds: int = 5, seed: int = 0,
+                   quiet: bool = True) -> Diagnosis:
+    """Fit the model and every applicable candidate, test the residuals and decide the verdict; no files."""
     from ..progress import track
 
-    out = Path(out_dir)
     resp = response_column(kind)
     unit = unit_label(resp)
-    rbase = split_unit(resp)[0]
-    bound = model.bind(df, where=str(data_path))
+    df_all = df
+    noise = noise_estimate(df, resp)
+    outliers = list(noise.get("outliers", []))
+    if outliers:  # flagged rows are reported and left out of every fit
+        df = df.drop(index=df.index[outliers]).reset_index(drop=True)
+    bound = model.bind(df, where=str(where))
     check_model_output(bound, None, "start values")  # validation layer: NaN names the effect (exit 2)
     groups, how = crossval.cv_groups(df, resp)
     folds = crossval.assign_folds(groups, k_folds, seed)
     base = evaluate(bound, folds, groups, seed=seed)
     check_model_output(bound, base.theta, "solution")
-    noise = noise_estimate(df, resp)
-    sigma = noise["sd"]
-    noise_txt = (f"noise is {_fmt(sigma, unit)}" if noise.get("reliable", True)
-                 else "the noise level cannot be estimated from so few points: treat this as a hint")
     covs = numeric_covariates(df, resp)
-    struct = structure_tests(df, base.resid, covs)
 
     cands: list[Candidate] = []
-    skipped = []
+    skipped = skipped_effects(model, df)
     for eff in track(applicable_effects(model, df), "trying candidate effects", quiet=quiet):
         c = fit_candidate(model, eff, df, base, seed)
         if c is None:
-            skipped.append(eff.name)
+            skipped.append({"effect": eff.name, "reason": f"needs more free parameters than {base.y.size} points "
+                                                          "allow (at least 2 residual degrees of freedom)"})
         else:
             cands.append(c)
+    flexible = min([base] + [c.ev for c in cands], key=lambda e: e.rss)
+    corr = serial_correlation(df, flexible.resid, covs)
+    noise = correct_for_correlation(noise, corr)
+    sigma = noise["sd"]
+    struct = structure_tests(df, base.resid, covs, correlation=noise.get("correlated"))
     cands.sort(key=lambda c: c.ev.cv_rmse)
+    vres = compute_verdict(df, resp, base, cands, noise, covs, struct, groups, folds)
+    verdict = vres.as_dict()
+    verdict["period_unit"] = unit_label(vres.covariate) if vres.period else None
+    tests = {t.name: t for t in vres.tests}
     for c in cands:
-        need = max(SE_MULTIPLE * (c.delta_cv_se if np.isfinite(c.delta_cv_se) else np.inf),
-                   MIN_GAIN_NOISE_FRACTION * sigma)
-        why = []
-        if not c.delta_cv > need:
-            why.append(f"held-out gain {_fmt(c.delta_cv)} <= {_fmt(need)}")
-        if not c.delta_bic < BIC_THRESHOLD:
-            why.append(f"dBIC {c.delta_bic:.1f} >= {BIC_THRESHOLD:g}")
-        if noise.get("reliable", True) and not base.cv_rmse > sigma:
-            why.append("the model's held-out RMSE is already at the noise level")
-        c.passes = not why
-        c.reason = "passes" if c.passes else "; ".join(why)
-
-    passing = [c for c in cands if c.passes]
-    winner = None
-    if passing:
-        best = passing[0]
-        near = [c for c in passing
-                if c is best or c.ev.cv_rmse - best.ev.cv_rmse
-                <= crossval.paired_difference(c.ev.sq_err, best.ev.sq_err, groups)[1]]
-        winner = min(near, key=lambda c: (len(c.ev.bound.free), c.ev.cv_rmse))
-
-    verdict = {"missing_effect": None, "covariate": None, "period": None, "period_unit": None, "message": ""}
-    left: list[dict] = []
-    sig_base = _significant(struct)
-    if winner is not None:
-        wstruct = structure_tests(df, winner.ev.resid, covs)
-        left = _significant(wstruct)
-        own = {base_name(c) for c in winner.effect.covariates}
-        own_left = [s for s in left if base_name(s["covariate"]) in own]
-        mine = [c for c in covs if base_name(c) in own and df[c].nunique() >= 2]
-        cov = min(mine, key=lambda c: min((s["p_value"] for s in struct if s["covariate"] == c), default=1.0),
-                  default=None)
-        if own_left:
-            cov = own_left[0]["covariate"]
-            period = _period_of(struct, cov) if is_ordered(cov) else None
-            verdict.update(covariate=cov, period=period, period_unit=unit_label(cov) if period else None)
-            ptxt = f" (period {_fmt(period, unit_label(cov))})" if period else ""
-            verdict["message"] = (
-                f"an effect not built in depends on {cov}{ptxt}: write a plugin. The closest built-in effect, "
-                f"{winner.effect.name}, cuts held-out RMSE from {_fmt(base.cv_rmse, unit)} to "
-                f"{_fmt(winner.ev.cv_rmse, unit)} but leaves structure against {cov} "
-                f"({own_left[0]['test']}, p = {own_left[0]['p_value']:.2g}); noise is {_fmt(sigma, unit)}")
-            winner_named = False
-        else:
-            winner_named = True
-            verdict.update(missing_effect=winner.effect.name, covariate=cov)
-            dir_txt = (f"{rbase} {_direction(df, cov, base.resid)} {cov}: " if cov else "")
-            verdict["message"] = (
-                f"{dir_txt}adding {winner.effect.name} cuts held-out RMSE from {_fmt(base.cv_rmse, unit)} to "
-                f"{_fmt(winner.ev.cv_rmse, unit)} (dBIC {winner.delta_bic:.0f}); {noise_txt}")
-            if left:
-                verdict["message"] += (f". Structure remains against {left[0]['covariate']} "
-                                       f"({left[0]['test']}, p = {left[0]['p_value']:.2g}): after adding it, "
-                                       "run diagnose again")
-    else:
-        winner_named = False
-    if winner is None:
-        if sig_base:
-            cov = sig_base[0]["covariate"]
-            period = _period_of(struct, cov) if is_ordered(cov) else None
-            verdict.update(covariate=cov, period=period, period_unit=unit_label(cov) if period else None)
-            ptxt = f" (period {_fmt(period, unit_label(cov))})" if period else ""
-            verdict["message"] = (f"an effect not built in depends on {cov}{ptxt}: write a plugin "
-                                  f"({rbase} {_direction(df, cov, base.resid)} {cov}; {sig_base[0]['test']} "
-                                  f"p = {sig_base[0]['p_value']:.2g}; no built-in candidate passes the rule)")
-        elif not noise.get("reliable", True):
-            verdict["message"] = (f"no effect can be named: no built-in candidate passes the rule, and with {base.y.size} "
-                                  "points and no replicates the noise level cannot be estimated, so the data cannot "
-                                  "show whether anything is missing")
-            if cands:
-                verdict["message"] += f" (best candidate {cands[0].effect.name}: {cands[0].reason})"
-        else:
-            verdict["message"] = "nothing is missing: the model explains the data to the noise level"
-            if cands and cands[0].delta_cv > 0:
-                verdict["message"] += (f" (best candidate {cands[0].effect.name}: {cands[0].reason})")
+        t = tests[c.effect.name]
+        c.passes, c.reason = t.supported, t.reason
+        c.p_value, c.p_adjusted = t.p_value, t.p_adjusted
+    winner_named = vres.missing_effect is not None
+    winner = next((c for c in cands if c.effect.name == vres.missing_effect), None)
+    left = vres.structure_used if winner is not None else []
+    warn = fit_warnings(param_table(winner.ev if winner is not None else base))
+    if warn:
+        verdict["message"] += ". Fit warnings: " + "; ".join(warn)
+    verdict["fit_warnings"] = warn
 
     def cand_rec(c: Candidate) -> dict:
         pt = param_table(c.ev)
         return {"effect": c.effect.name, "origin": c.effect.origin, "cv_rmse": c.ev.cv_rmse,
                 "cv_rmse_se": c.ev.cv_rmse_se, "delta_cv_rmse": -c.delta_cv, "delta_cv_rmse_se": c.delta_cv_se,
                 "delta_bic": c.delta_bic, "rmse": c.ev.rmse, "n_free": len(c.ev.bound.free),
-                "passes": c.passes, "reason": c.reason,
+                "passes": c.passes, "reason": c.reason, "f_test_p": c.p_value, "f_test_p_adjusted": c.p_adjusted,
                 "params": {k: v for k, v in pt.items() if v.get("owner") == c.effect.name},
                 "base_params": {k: v for k, v in pt.items() if v.get("owner") == "base" and v.get("free")}}
 
-    dh = data_hash(data_path)
     result = {
         "model": model.name, "model_file": model.path, "model_hash": model.hash, "kind": kind,
-        "base": model.base.name, "effects": model.effect_names, "data": str(data_path), "data_hash": dh,
-        "n": int(base.y.size), "unit": unit,
-        "noise": {"sd": sigma, "se": noise["se"], "method": noise["method"]},
+        "base": model.base.name, "effects": model.effect_names, "data": str(where), "data_hash": None,
+        "n": int(base.y.size), "n_rows": int(len(df_all)), "unit": unit,
+        "noise": {"sd": sigma, "se": noise["se"], "method": noise["method"], "reliable": noise.get("reliable", True),
+                  "correlated": ({k: v for k, v in noise["correlated"].items() if not k.startswith("_")}
+                                 if noise.get("correlated") else None)},
+        "outliers": [{"row": int(i), **{c: (float(df_all.iloc[i][c]) if pd.api.types.is_numeric_dtype(df_all[c])
+                                           else str(df_all.iloc[i][c])) for c in df_all.columns}}
+                     for i in outliers],
+        "collinear_covariates": collinear_groups({c: df[c].to_numpy(float) for c in covs}),
         "model_as_is": {"cv_rmse": base.cv_rmse, "cv_rmse_se": base.cv_rmse_se, "rmse": base.rmse, "bic": base.bic,
                         "n_free": base.k, "params": param_table(base)},
         "cv": {"folds": int(np.unique(folds).size), "groups": how},
@@ -288,10 +247,26 @@ def run_diagnose(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_
         "skipped_candidates": skipped,
         "residual_structure": struct,
         "residual_structure_after_winner": left if winner is not None else [],
-        "verdict": {k: verdict[k] for k in ("missing_effect", "covariate", "message", "period", "period_unit")},
-        "rule": RULE_TEXT, "alpha": ALPHA, "bic_threshold": BIC_THRESHOLD,
+        "verdict": verdict,
+        "rule": RULE_TEXT, "alpha_effect": ALPHA_EFFECT, "alpha_structure": ALPHA_STRUCTURE,
     }
+    return Diagnosis(result, base, cands, winner, winner_named, covs, df)
 
+
+def run_diagnose(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_dir: str | Path,
+                 write_model: str | Path | None = None, k_folds: int = 5, seed: int = 0,
+                 add_best: bool = False, quiet: bool = True, figures: bool = True) -> dict:
+    """Diagnose ``model`` against the table; write diagnosis.json/.md, figures and optionally the new model."""
+    dg = diagnose_table(model, df, kind, str(data_path), k_folds, seed, quiet)
+    result, base, cands, winner, winner_named, covs, df = (dg.result, dg.base, dg.cands, dg.winner,
+                                                            dg.winner_named, dg.covs, dg.df)
+    resp = response_column(kind)
+    unit = unit_label(resp)
+    sigma = result["noise"]["sd"]
+    verdict = result["verdict"]
+    dh = data_hash(data_path)
+    result["data_hash"] = dh
+    out = Path(out_dir)
     # tables and figures
     out.mkdir(parents=True, exist_ok=True)
     prov = provenance(config_hash=model.hash, seed=seed, data_synthetic=is_synthetic(df), model=model.content, data=str(data_path), data_hash=dh)
@@ -299,6 +274,8 @@ def run_diagnose(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_
     write_table(res, out / "residuals.parquet", residual_schema(res), prov)
     figs = []
     if figures:
+        from ..plots import loop as plots
+
         plots.plot_residuals(res, covs, resp, out / "residuals.png", noise_sd=sigma,
                              title=f"{model.name}: residuals against each covariate")
         figs.append("residuals.png")
@@ -367,6 +344,13 @@ def diagnosis_markdown(r: dict, cands: list[Candidate], base: Evaluation, winner
               + f", {r['model_as_is']['n_free']} free parameters): held-out RMSE "
               f"{_fmt(r['model_as_is']['cv_rmse'], u)} ± {_fmt(r['model_as_is']['cv_rmse_se'])}, in-sample "
               f"{_fmt(r['model_as_is']['rmse'], u)}.", ""]
+    if r.get("outliers"):
+        lines += [f"- Outliers (more than the rule's threshold of robust noise SDs from their neighbours or "
+                  f"replicates), left out of every fit: rows {', '.join(str(o['row']) for o in r['outliers'])} "
+                  "(0-based data rows).", ""]
+    if r.get("collinear_covariates"):
+        lines += ["- Collinear covariates (the data cannot separate their effects): "
+                  + "; ".join(" and ".join(g) for g in r["collinear_covariates"]) + ".", ""]
     lines += ["## What the residuals show", ""]
     sig = [s for s in r["residual_structure"] if s["p_adjusted"] < ALPHA]
     if not sig:
@@ -375,16 +359,21 @@ def diagnosis_markdown(r: dict, cands: list[Candidate], base: Evaluation, winner
     for s in sig:
         extra = f", period {_fmt(s['periodic_period'], unit_label(s['covariate']))}" if s["periodic_period"] else ""
         lines.append(f"- against {s['covariate']}: {s['test']} (statistic {s['statistic']:.3g}, p = "
-                     f"{s['p_value']:.2g}{extra})")
+                     f"{s['p_value']:.2g}{extra})" + (" -- also produced by the serially correlated noise alone"
+                                                      if s.get("serial") else ""))
     lines += ["", "## Candidate effects, best first", "",
-              f"| effect | held-out RMSE [{u}] | change vs model [{u}] | dBIC | free params | verdict rule |",
-              "| --- | --- | --- | --- | --- | --- |"]
+              f"| effect | held-out RMSE [{u}] | change vs model [{u}] | F test p | dBIC | free params | verdict rule |",
+              "| --- | --- | --- | --- | --- | --- | --- |"]
     for c in cands:
         lines.append(f"| {c.effect.name} | {_fmt(c.ev.cv_rmse)} ± {_fmt(c.ev.cv_rmse_se)} | "
-                     f"{_fmt(-c.delta_cv)} ± {_fmt(c.delta_cv_se)} | {c.delta_bic:.1f} | {len(c.ev.bound.free)} | "
+                     f"{_fmt(-c.delta_cv)} ± {_fmt(c.delta_cv_se)} | {c.p_value:.2g} | {c.delta_bic:.1f} | "
+                     f"{len(c.ev.bound.free)} | "
                      f"{c.reason} |")
     if not cands:
-        lines.append("| (no applicable candidate: the table lacks the covariates they need) | | | | | |")
+        lines.append("| (no applicable candidate: the table lacks the covariates they need) | | | | | | |")
+    if r.get("skipped_candidates"):
+        lines += ["", "Not tried (or constant here):", ""]
+        lines += [f"- {k['effect']}: {k['reason']}" for k in r["skipped_candidates"]]
     if winner is not None:
         lines += ["", f"## {winner.effect.name}", "", winner.effect.description, "",
                   f"Source: {winner.effect.source}.", "", "Fitted parameters (95 % intervals):", ""]
@@ -392,6 +381,8 @@ def diagnosis_markdown(r: dict, cands: list[Candidate], base: Evaluation, winner
             if p.get("owner") == winner.effect.name or p.get("free"):
                 ci = p.get("ci95")
                 ci_txt = f" [{_fmt(ci[0])}, {_fmt(ci[1])}]" if ci else " (fixed)"
+                ci_txt += " -- AT ITS BOUND" if p.get("at_bound") else ""
+                ci_txt += " -- DEGENERATE (not determined by the data)" if p.get("degenerate") else ""
                 lines.append(f"- {k} = {_fmt(p['value'])} {p.get('unit', '')}{ci_txt}")
         if r.get("residual_structure_after_winner"):
             s = r["residual_structure_after_winner"][0]

@@ -12,7 +12,9 @@ Per covariate (``residual_structure`` of contract section 2, diagnose):
   periodogram of the linearly detrended residuals (standard normalisation), its
   peak period and false-alarm probability FAP = 1 - (1 - (1 - p)^((N-3)/2))^M over
   M independent frequencies (Scargle 1982, ApJ 263, 835; Horne & Baliunas 1986,
-  ApJ 302, 757; Cumming 2004, MNRAS 354, 1165).
+  ApJ 302, 757; Cumming 2004, MNRAS 354, 1165); below 60 points M is calibrated by
+  simulation (400 detrended white-noise records at the same x; M matches their 90th
+  percentile of the peak power), since M = T (f_max - f_min) is too small for short records.
 
 Noise (:func:`noise_estimate`): the pooled within-group standard deviation at
 identical covariates when replicates exist; otherwise the difference-based
@@ -36,6 +38,10 @@ ORDERED = ("time", "position")
 GROUP_LABELS = ("trial", "run")
 #: labels that annotate a row without changing what was measured
 NOTE_LABELS = ("source", "note", "id", "label")
+#: family false-alarm rate of the outlier flags over all rows of a table
+OUTLIER_ALPHA = 0.01
+#: significance of serial correlation of the noise along time/position
+CORRELATION_ALPHA = 0.01
 
 
 def _base(col: str) -> str:
@@ -110,11 +116,31 @@ def runs_test(x, r) -> tuple[float, float]:
     return float(z), float(stats.norm.cdf(z))
 
 
-def lomb_scargle(x, r, n_freq_max: int = 4000) -> tuple[float, float, float]:
+#: below this many points the periodogram's false-alarm probability is simulated (the analytic
+#: approximation is anti-conservative for short records)
+LS_SIMULATE_BELOW = 60
+LS_SIMULATIONS = 400
+
+
+def _ls_power(x: np.ndarray, Y: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Return the normalised Lomb-Scargle power (fraction of variance) of each column of Y at frequencies f."""
+    w = 2 * np.pi * f[:, None]
+    tau = np.arctan2(np.sum(np.sin(2 * w * x), axis=1), np.sum(np.cos(2 * w * x), axis=1)) / (2 * w[:, 0])
+    arg = w * (x[None, :] - tau[:, None])
+    c, s = np.cos(arg), np.sin(arg)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        P = 0.5 * ((c @ Y) ** 2 / np.sum(c * c, axis=1)[:, None] + (s @ Y) ** 2 / np.sum(s * s, axis=1)[:, None])
+    return 2.0 * P / np.sum(Y * Y, axis=0)[None, :]
+
+
+def lomb_scargle(x, r, n_freq_max: int = 4000, rho: float = 0.0) -> tuple[float, float, float]:
     """Return (peak power [0-1], false-alarm p, period [unit of x]) of the detrended residuals.
 
     Frequencies from 2 cycles over the span up to the mean-spacing Nyquist limit,
-    oversampled 5 times.
+    oversampled 5 times. With ``rho`` > 0 (AR(1) noise of lag-1 correlation rho at the mean
+    spacing) each frequency's power is divided by the red-noise spectrum
+    (1 - rho^2) / (1 - 2 rho cos(2 pi f dx) + rho^2), floored at the white level 1, before the
+    false-alarm probability (exponential law of the periodogram over its expected value).
     """
     x = np.asarray(x, float)
     r = np.asarray(r, float)
@@ -140,19 +166,51 @@ def lomb_scargle(x, r, n_freq_max: int = 4000) -> tuple[float, float, float]:
     c, s = np.cos(arg), np.sin(arg)
     with np.errstate(invalid="ignore", divide="ignore"):
         P = 0.5 * ((c @ y) ** 2 / np.sum(c * c, axis=1) + (s @ y) ** 2 / np.sum(s * s, axis=1))
+    M = max(1.0, T * (fmax - fmin))
+    if rho > 0:
+        # power over the AR(1) spectrum (mean 1) in units of the variance: exponential under the null
+        # never below the white level: leakage from the strong low frequencies would otherwise pass for
+        # a period at high frequencies, where the AR(1) spectrum is tiny
+        red = np.maximum((1 - rho * rho) / (1 - 2 * rho * np.cos(2 * np.pi * f * dx) + rho * rho), 1.0)
+        zr = P / (yy / n) / red
+        k = int(np.nanargmax(zr))
+        single = float(np.exp(-zr[k]))
+        fap = float(-np.expm1(M * np.log1p(-min(single, 1 - 1e-16)))) if single > 0 else 0.0
+        return float(2.0 * P[k] / yy), min(max(fap, 0.0), 1.0), float(1.0 / f[k])
     p = np.clip(2.0 * P / yy, 0.0, 1.0)
     k = int(np.nanargmax(p))
     z = float(p[k])
+    if n < LS_SIMULATE_BELOW:
+        # false-alarm probability by simulation: the largest power of white-noise records at the same x,
+        # detrended alike (fixed seed)
+        rng = np.random.default_rng(12345)
+        Y = rng.standard_normal((n, LS_SIMULATIONS))
+        Y = Y - A @ np.linalg.lstsq(A, Y, rcond=None)[0]
+        peak = np.nanmax(_ls_power(x, Y, f), axis=0)
+        # the number of independent frequencies M that makes the analytic law match the simulated 90th
+        # percentile; the tail then follows the analytic law with that M
+        s90 = (1.0 - float(np.quantile(peak, 0.9))) ** (0.5 * (n - 3))
+        M = max(1.0, math.log(0.1) / math.log1p(-min(max(s90, 1e-300), 1 - 1e-16)))
+        single = (1.0 - z) ** (0.5 * (n - 3))
+        fap = float(-np.expm1(M * np.log1p(-min(single, 1 - 1e-16)))) if single > 0 else 0.0
+        return z, min(max(fap, 0.0), 1.0), float(1.0 / f[k])
     single = (1.0 - z) ** (0.5 * (n - 3))
-    M = max(1.0, T * (fmax - fmin))
     fap = float(-np.expm1(M * np.log1p(-min(single, 1 - 1e-16)))) if single > 0 else 0.0
     return z, min(max(fap, 0.0), 1.0), float(1.0 / f[k])
 
 
-def structure_tests(df: pd.DataFrame, residual: np.ndarray, covariates: list[str]) -> list[dict]:
-    """Return one record per (covariate, test): {covariate, test, statistic, p_value, periodic_period, method}."""
+def structure_tests(df: pd.DataFrame, residual: np.ndarray, covariates: list[str],
+                    correlation: dict | None = None) -> list[dict]:
+    """Return one record per (covariate, test): {covariate, test, statistic, p_value, periodic_period, method}.
+
+    With ``correlation`` (serially correlated residuals, :func:`serial_correlation`) the periodogram
+    of ordered covariates is tested against the AR(1) red-noise spectrum (Schulz & Mudelsee 2002,
+    Comput. Geosci. 28, 421), and the trend, lack-of-fit and runs tests along ordered covariates are
+    marked ``serial: True``: correlated noise alone makes them fire, so they are no evidence of an effect.
+    """
     out = []
     r = np.asarray(residual, float)
+    ar1 = correlation["rho"] if correlation else 0.0
     for col in covariates:
         x = df[col].to_numpy(dtype=float)
         if np.unique(x).size < 2:
@@ -170,13 +228,16 @@ def structure_tests(df: pd.DataFrame, residual: np.ndarray, covariates: list[str
             out.append({"covariate": col, "test": "runs", "statistic": z, "p_value": p,
                         "periodic_period": None, "method": "Wald-Wolfowitz runs of residual signs (one-sided)"})
         if is_ordered(col):
-            power, p, period = lomb_scargle(x, r)
+            power, p, period = lomb_scargle(x, r, rho=ar1)
             if np.isfinite(p):
                 out.append({"covariate": col, "test": "periodogram", "statistic": power, "p_value": p,
                             "periodic_period": period, "method": "Lomb-Scargle, false-alarm probability"})
     m = max(len(out), 1)
     for rec in out:
         rec["p_adjusted"] = min(1.0, rec["p_value"] * m)
+        rec["serial"] = bool(correlation) and is_ordered(rec["covariate"]) and rec["test"] != "periodogram"
+        if correlation and is_ordered(rec["covariate"]) and rec["test"] == "periodogram":
+            rec["method"] += f" against AR(1) red noise (rho = {ar1:.2f})"
     return out
 
 
@@ -214,72 +275,221 @@ def gasser_sd(x: np.ndarray, y: np.ndarray) -> float:
     return float(np.sqrt(np.mean(e * e / c2)))
 
 
-def _segment_gasser_var(x: np.ndarray, y: np.ndarray, seg: np.ndarray) -> float | None:
-    """Return the pooled Gasser variance over contiguous segments ``seg`` of >= 5 rows (None if none).
+def outlier_threshold(n: int, alpha: float = OUTLIER_ALPHA) -> float:
+    """Return the |z| above which a row is an outlier: Bonferroni over n rows at family ``alpha``, >= 3.5."""
+    return max(3.5, float(stats.norm.isf(alpha / (2 * max(n, 1)))))
 
-    Vectorised form of :func:`gasser_sd` per segment, squared and averaged with weights
-    (rows - 2): the triples that straddle two segments are left out; O(rows), no per-row Python.
+
+def _robust_scale(z: np.ndarray) -> float:
+    """Return 1.4826 x the median absolute value (the normal-consistent MAD about zero)."""
+    z = np.asarray(z, float)
+    return float(1.4826 * np.median(np.abs(z))) if z.size else float("nan")
+
+
+def _replicate_noise(y: np.ndarray, g: np.ndarray) -> tuple[float, int, np.ndarray]:
+    """Return (pooled SD, dof, outlier mask) at replicate groups, outliers flagged by leave-one-out z.
+
+    The first scale is the MAD of the leave-one-out deviations (robust to a few outliers); then the pooled
+    SD of the rows kept, iterated until the flags settle.
     """
-    if y.size < 5:
-        return None
-    size = np.bincount(seg)
-    mid = seg[1:-1]
-    ok = (seg[:-2] == seg[2:]) & (size[mid] >= 5)
-    if not ok.any():
-        return None
+    out = np.zeros(y.size, bool)
+    sd = float("nan")
+
+    def pooled(keep):
+        cnt = np.bincount(g[keep], minlength=g.max() + 1).astype(float)
+        tot = np.bincount(g[keep], weights=y[keep], minlength=g.max() + 1)
+        mean = np.where(cnt > 0, tot / np.maximum(cnt, 1), 0.0)
+        dof = int(np.sum(np.maximum(cnt - 1, 0)))
+        ss = float(np.sum(((y - mean[g]) ** 2)[keep & (cnt[g] >= 2)]))
+        return (math.sqrt(ss / dof) if dof > 0 else float("nan")), dof, cnt, tot
+
+    for it in range(6):
+        keep = ~out
+        _, dof, cnt, tot = pooled(keep)
+        c = cnt[g]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            m = c - keep  # kept rows of the group other than this one
+            loo = np.where(m > 0, (tot[g] - np.where(keep, y, 0.0)) / m, np.nan)
+            d = (y - loo) / np.sqrt(1.0 + 1.0 / m)
+        if it == 0:
+            sd = _robust_scale(d[np.isfinite(d)])
+        new = np.isfinite(d) & (np.abs(d) > outlier_threshold(y.size) * sd)
+        if np.array_equal(new, out):
+            break
+        out = new
+        sd = pooled(~out)[0]
+    sd, dof, _, _ = pooled(~out)
+    return sd, dof, out
+
+
+def _pseudo(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Return the normalised Gasser pseudo-residuals (N(0, sigma^2) for white noise) of interior points."""
     x0, x1, x2 = x[:-2], x[1:-1], x[2:]
     span = x2 - x0
     with np.errstate(invalid="ignore", divide="ignore"):
         a = np.where(span > 0, (x2 - x1) / span, 0.5)
     b = 1.0 - a
-    e = a * y[:-2] + b * y[2:] - y[1:-1]
-    term = e * e / (a * a + b * b + 1.0)
-    sums = np.bincount(mid[ok], weights=term[ok], minlength=size.size)
-    cnt = np.bincount(mid[ok], minlength=size.size)
-    use = (size >= 5) & (cnt > 0)
-    return float(np.average(sums[use] / cnt[use], weights=size[use] - 2))
+    return (a * y[:-2] + b * y[2:] - y[1:-1]) / np.sqrt(a * a + b * b + 1.0)
+
+
+def _ar1_pseudo_stats(rho: float) -> tuple[float, float]:
+    """Return (variance factor, lag-1 correlation) of equally spaced pseudo-residuals under AR(1) noise rho."""
+    c = np.array([0.5, -1.0, 0.5])
+
+    def cov(lag):
+        return sum(c[j] * c[k] * rho ** abs(lag + k - j) for j in range(3) for k in range(3))
+
+    v = cov(0)
+    return v / 1.5, cov(1) / v
+
+
+def record_order(df: pd.DataFrame, covariate: str) -> tuple[np.ndarray, np.ndarray]:
+    """Return (rows along ``covariate`` within each trial/run, segment id per row): the record's order."""
+    labels = [c for c in GROUP_LABELS if c in df.columns]
+    d = df.reset_index(drop=True)
+    order = d.sort_values(labels + [covariate], kind="stable").index.to_numpy()
+    seg = d.groupby(labels, sort=False).ngroup().to_numpy() if labels else np.zeros(len(d), int)
+    return order, seg
+
+
+def lag1_correlation(r: np.ndarray, order: np.ndarray, segment: np.ndarray) -> tuple[float, float]:
+    """Return (lag-1 autocorrelation, one-sided p against independence) of ``r`` along a record.
+
+    Within segments; p from the normal approximation r1 ~ N(-1/m, 1/m) of independent errors
+    (Box & Jenkins, Time Series Analysis, section 6.2).
+    """
+    r = np.asarray(r, float)[order]
+    seg = np.asarray(segment)[order]
+    if seg.size:  # deviations from each segment's mean (group means by bincount: O(rows))
+        ids = pd.factorize(seg)[0]
+        r = r - (np.bincount(ids, weights=r) / np.bincount(ids))[ids]
+    same = seg[1:] == seg[:-1]
+    m = int(same.sum())
+    den = float(r @ r)
+    if m < 8 or den <= 0:
+        return float("nan"), float("nan")
+    r1 = float(np.sum(r[1:][same] * r[:-1][same]) / den)
+    z = (r1 + 1.0 / m) * math.sqrt(m)
+    return r1, float(stats.norm.sf(z))
+
+
+def serial_correlation(df: pd.DataFrame, residual: np.ndarray, covariates: list[str],
+                       alpha: float = CORRELATION_ALPHA) -> dict | None:
+    """Return {covariate, rho, p_value} of serially correlated residuals along time/position, or None.
+
+    Computed on the residuals of the most flexible fit tried (so a missing smooth effect that a candidate
+    explains is not mistaken for correlated noise). Private keys ``_order``/``_segment`` give the record.
+    """
+    best = None
+    for c in covariates:
+        if not is_ordered(c) or df[c].nunique() < 8:
+            continue
+        order, seg = record_order(df, c)
+        rho, p = lag1_correlation(residual, order, seg)
+        if np.isfinite(p) and p < alpha / max(1, sum(map(is_ordered, covariates))) and rho > 0:
+            # the lag-1 sample correlation of a short record is biased low: E[r1] = rho - (1 + 4 rho)/n
+            # (Kendall 1954, Biometrika 41, 403), corrected so that the red-noise background is not too flat
+            rho_c = rho + (1 + 4 * rho) / max(len(residual), 1)
+            if best is None or p < best["p_value"]:
+                best = {"covariate": c, "rho": float(min(rho_c, 0.95)), "p_value": p, "_order": order,
+                        "_segment": seg}
+    return best
+
+
+def correct_for_correlation(noise: dict, corr: dict | None) -> dict:
+    """Return the noise estimate corrected for AR(1) correlation: differences of correlated readings
+    understate the noise (variance factor of pseudo-residuals 1 - 4 rho/3 + rho^2/3, equal spacing)."""
+    if not corr:
+        return noise
+    out = dict(noise, correlated=corr)
+    if noise["method"].startswith("difference-based"):
+        f = _ar1_pseudo_stats(corr["rho"])[0]
+        out["sd"] = noise["sd"] / math.sqrt(f)
+        out["se"] = noise["se"] / math.sqrt(f) * math.sqrt((1 + corr["rho"]) / (1 - corr["rho"]))
+    out["method"] = (noise["method"] + f"; residuals serially correlated along {corr['covariate']} (lag-1 "
+                     f"correlation {corr['rho']:.2f}, p = {corr['p_value']:.2g})"
+                     + (": SD corrected for AR(1) noise" if noise["method"].startswith("difference-based") else ""))
+    return out
 
 
 def noise_estimate(df: pd.DataFrame, response: str) -> dict:
-    """Return {sd, se, method, dof} of the measurement noise (response unit)."""
+    """Return {sd, se, method, dof, reliable, outliers, correlated} of the measurement noise (response unit).
+
+    Replicates: pooled within-group SD at identical covariates; rows whose leave-one-out deviation from
+    their group exceeds :func:`outlier_threshold` robust SDs are flagged and left out (iterated).
+    Otherwise the difference-based estimator of Gasser, Sroka & Jennen-Steinmetz (1986) along each
+    ordering (within trials and levels of the other covariates), the smallest taken; its scale starts
+    from the MAD of the pseudo-residuals, a row whose pseudo-residual exceeds the threshold (and its
+    neighbours') is flagged and left out. Along time/position, serial correlation of the noise (AR(1),
+    :func:`serial_correlation`, p < 0.01) is detected; the SD is then corrected for it (differences of
+    correlated readings understate the noise) and ``correlated`` gives {covariate, rho, p_value}.
+    ``outliers`` lists the flagged rows (0-based positions in ``df``).
+    """
     y = df[response].to_numpy(dtype=float)
     g = replicate_groups(df, response)
     counts = np.bincount(g)
-    rep = counts[g] >= 2
     dof = int(np.sum(counts[counts >= 2] - 1))
     if dof >= 3 and (counts >= 2).sum() >= 2:
-        means = np.bincount(g, weights=y) / counts
-        ss = float(np.sum((y[rep] - means[g][rep]) ** 2))
-        sd = math.sqrt(ss / dof)
-        return {"sd": sd, "se": sd / math.sqrt(2 * dof), "dof": dof, "reliable": True,
+        sd, dof, out = _replicate_noise(y, g)
+        rows = [int(i) for i in np.flatnonzero(out)]
+        return {"sd": sd, "se": sd / math.sqrt(2 * max(dof, 1)), "dof": dof, "reliable": True, "outliers": rows,
+                "correlated": None,
                 "method": f"replicates: pooled within-group SD at identical covariates "
-                          f"({int((counts >= 2).sum())} groups, {dof} degrees of freedom)"}
+                          f"({int((counts >= 2).sum())} groups, {dof} degrees of freedom"
+                          + (f"; {len(rows)} outlier rows left out" if rows else "") + ")"}
     covs = numeric_covariates(df, response)
     labels = [c for c in GROUP_LABELS if c in df.columns]
-    best, how = float("nan"), ""
+    found = []
     for c in covs:
         if df[c].nunique() < 3:
             continue
-        # segments: the trial and the other covariates that take few values; differences restart there
         others = [o for o in covs if o != c and df[o].nunique() <= max(10, len(df) // 10)]
         d = df.reset_index(drop=True)
         order = d.sort_values(labels + others + [c], kind="stable").index.to_numpy()
         x = d[c].to_numpy(dtype=float)[order]
         yy = y[order]
-        seg = (d.loc[order, labels + others].groupby(labels + others, sort=False, dropna=False).ngroup().to_numpy()
-               if labels + others else np.zeros(y.size, dtype=np.int64))
-        var = _segment_gasser_var(x, yy, seg)
-        if var is None:
+        if labels + others:  # rows sorted by the labels first: each segment is one contiguous run (O(rows))
+            key = d.loc[order, labels + others].groupby(labels + others, sort=False, dropna=False).ngroup().to_numpy()
+            segs = np.split(np.arange(y.size), np.flatnonzero(key[1:] != key[:-1]) + 1)
+        else:
+            segs = [np.arange(y.size)]
+        segs = [s for s in segs if s.size >= 5]
+        if not segs:
             continue
-        sd = math.sqrt(var)
-        if not np.isfinite(best) or sd < best:
-            best, how = sd, c
-    if not np.isfinite(best):
+        pseudo = [_pseudo(x[s], yy[s]) for s in segs]
+        sd0 = _robust_scale(np.concatenate(pseudo))
+        thr = outlier_threshold(y.size)
+        flagged = []
+        for s, e in zip(segs, pseudo):
+            z = np.abs(e) / sd0 if sd0 > 0 else np.zeros_like(e)
+            for j in np.flatnonzero(z > thr):
+                if z[j] >= z[max(j - 1, 0)] and z[j] >= z[min(j + 1, z.size - 1)]:
+                    flagged.append(int(order[s[j + 1]]))
+        fl = set(flagged)
+        gone = np.array(sorted(fl), int)
+        clean = [s[~np.isin(order[s], gone)] for s in segs]
+        clean = [s for s in clean if s.size >= 5]
+        if not clean:
+            continue
+        pe = [_pseudo(x[s], yy[s]) for s in clean]
+        allp = np.concatenate(pe)
+        sd = float(np.sqrt(np.mean(allp ** 2)))
+        corr = None
+        found.append((sd, c, sorted(fl), corr, int(allp.size)))
+    # correlated noise is a property of the noise: when an ordering shows it, its corrected estimate is used
+    pool = [f for f in found if f[3]] or found
+    best = min(pool, key=lambda f: f[0]) if pool else None
+    if best is None:
         sd = float(np.std(y, ddof=1)) if y.size > 1 else float("nan")
         return {"sd": sd, "se": sd / math.sqrt(max(2 * (y.size - 1), 1)), "dof": int(y.size - 1), "reliable": False,
+                "outliers": [], "correlated": None,
                 "method": "no replicates and too few points along any covariate: SD of the data (an upper bound)"}
-    n = y.size
-    return {"sd": best, "se": best / math.sqrt(max(n - 2, 1)), "dof": int(n - 2), "reliable": True,
+    sd, how, rows, corr, m = best
+    se = sd / math.sqrt(max(m, 1)) * (math.sqrt((1 + corr["rho"]) / (1 - corr["rho"])) if corr else 1.0)
+    return {"sd": sd, "se": se, "dof": int(m), "reliable": True, "outliers": rows, "correlated": corr,
             "method": f"difference-based (Gasser, Sroka & Jennen-Steinmetz 1986) along {how}"
                       + (f" within each {', '.join(labels)}" if labels else "")
-                      + ": no replicates at identical covariates"}
+                      + ": no replicates at identical covariates"
+                      + (f"; {len(rows)} outlier rows left out" if rows else "")
+                      + (f"; serially correlated noise along {how} (AR(1) rho = {corr['rho']:.2f}, p = "
+                         f"{corr['p_value']:.2g}), SD corrected for it" if corr else "")}

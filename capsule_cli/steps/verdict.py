@@ -1,0 +1,459 @@
+"""The verdict of ``diagnose`` as a pure function of arrays (no files, no figures, no model kind).
+
+:func:`decide_verdict` takes what the fitting step measured -- per-row held-out
+squared errors and in-sample predictions of the model as is and of every
+candidate (model + one effect), their residual sums of squares and free-parameter
+counts, the noise estimate with its uncertainty, the covariates, and the
+residual-structure tests -- and returns one of four outcomes:
+
+``missing_effect``
+    a built-in (or plugin) effect is named; ``partial`` when structure remains
+    against its own covariate (a second effect or a plugin may be needed after it);
+``not_built_in``
+    no candidate passes but the residuals depend on a covariate (named, with the
+    period for ordered ones): an effect that is not built in;
+``nothing_missing``
+    no candidate passes, no structure, and the held-out error is within its
+    uncertainty of the noise level;
+``cannot_tell``
+    the numbers contradict "nothing is missing" (held-out error above the noise
+    by more than its uncertainty, or collinear covariates, or no noise estimate)
+    but nothing passes the rule: the closest candidate is named with roughly how
+    many more measurements, and where, would settle it.
+
+The rule (fixed in advance, printed in every report, :data:`RULE_TEXT`):
+
+* a candidate is *supported* when its nested F test against the model as is
+  (F = (RSS0 - RSS1)/dk / (RSS1/(n - k1)); Seber & Wild 1989, Nonlinear
+  Regression, section 5.3) has p < ALPHA_EFFECT / m (Bonferroni over the m
+  candidates tried) and its held-out mean squared error is lower than the
+  model's (it predicts unseen rows better, not only the fitted ones);
+* of supported candidates the one with the lowest AICc (Hurvich & Tsai 1989) is
+  taken, those with an own parameter at its bound last; others within CLOSE_AICC
+  are named as near-equal alternatives;
+* with none supported, residual structure (tests of
+  :mod:`.residual_tests`, Bonferroni over all tests, family ALPHA_STRUCTURE)
+  names a covariate;
+* ALPHA_EFFECT + ALPHA_STRUCTURE = 0.02 bounds the share of data sets with
+  nothing missing that get any finding (checked by ``benchmarks/verdict_calibration.py``).
+
+Design of the arrays (all length n, one entry per row used in the fit): ``y``
+the observations; ``FitSummary.pred`` in-sample predictions; ``FitSummary.sq_err``
+held-out squared errors (grouped K-fold). Kind-agnostic: the dynamics kinds
+call it with their own residual arrays.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Mapping, Sequence
+
+import numpy as np
+from scipy import stats
+
+from . import crossval
+
+ALPHA_EFFECT = 0.01
+ALPHA_STRUCTURE = 0.01
+#: |correlation| at or above which two covariates count as collinear in the data
+COLLINEAR_R = 0.95
+#: share of the excess held-out MSE (above the noise) a winner must remove to be named as a partial step
+PARTIAL_SHARE = 0.5
+#: supported candidates within this many AICc units of the winner are named as near-equal alternatives
+CLOSE_AICC = 2.0
+#: power wanted when estimating how many measurements would settle a "cannot tell"
+TARGET_POWER = 0.8
+#: held-out error above noise * sqrt(inflation) by more than this many standard errors contradicts "nothing missing"
+EXCESS_Z = 2.0
+
+RULE_TEXT = (
+    "A candidate effect is named only if its nested F test against the model as is has p < "
+    f"{ALPHA_EFFECT:g}/m (Bonferroni over the m candidates tried) and it lowers the held-out (cross-validated) "
+    f"mean squared error; among those the lowest AICc wins (others within {CLOSE_AICC:g} are named as "
+    "near-equal alternatives; candidates with a parameter at its bound only if no other passes). If structure remains "
+    "against the winner's own covariate it is named as a partial step when it removes at least "
+    f"{100 * PARTIAL_SHARE:g} % of the held-out error above the noise and what remains is not periodic; otherwise "
+    "its form does not fit and the covariate is named (an effect that is not built in, with its period). "
+    "With no candidate named, residual "
+    "structure (trend, lack of fit, runs, periodogram; serial correlation of the noise along time/position "
+    f"allowed for; Bonferroni over all tests, family alpha = {ALPHA_STRUCTURE:g}) names the covariate an effect "
+    "that is not built in depends on. Covariates collinear in the data (|r| >= "
+    f"{COLLINEAR_R:g}) are named together, never one of them alone. \"Nothing is missing\" only when the "
+    f"held-out error is within {EXCESS_Z:g} standard errors of the noise level; otherwise \"the data cannot tell\". "
+    f"At most {100 * (ALPHA_EFFECT + ALPHA_STRUCTURE):g} % of data sets with nothing missing get a finding "
+    "(benchmarks/verdict_calibration.py).")
+
+
+@dataclass
+class FitSummary:
+    """One calibrated and cross-validated model (the model as is, or it plus one candidate effect).
+
+    name : effect name ('' for the model as is)
+    n_free : number of free parameters
+    rss : in-sample residual sum of squares [response unit^2]
+    pred : in-sample predictions per row [response unit]
+    sq_err : held-out squared errors per row [response unit^2]
+    covariates : covariate columns the effect depends on (empty for the model as is)
+    structure : residual-structure records of its in-sample residuals (see residual_tests.structure_tests)
+    at_bound : names of the effect's parameters that ended at a bound (its form strained to fit)
+    """
+
+    name: str
+    n_free: int
+    rss: float
+    pred: np.ndarray
+    sq_err: np.ndarray
+    covariates: tuple[str, ...] = ()
+    structure: list[dict] = field(default_factory=list)
+    at_bound: tuple[str, ...] = ()
+
+    @property
+    def cv_rmse(self) -> float:
+        return math.sqrt(float(np.mean(self.sq_err)))
+
+
+@dataclass
+class Noise:
+    """Noise estimate [response unit]: SD, its standard error, whether it is an estimate at all, and how."""
+
+    sd: float
+    se: float
+    reliable: bool = True
+    method: str = ""
+    correlated: dict | None = None  # {covariate, rho, p_value} when serial correlation was detected
+
+
+@dataclass
+class CandidateTest:
+    name: str
+    f_stat: float
+    p_value: float
+    p_adjusted: float
+    delta_cv_rmse: float  # model as is minus candidate (> 0: candidate better)
+    delta_cv_rmse_se: float
+    supported: bool
+    reason: str
+
+
+@dataclass
+class Verdict:
+    outcome: str  # missing_effect | not_built_in | nothing_missing | cannot_tell
+    missing_effect: str | None
+    covariate: str | None
+    period: float | None
+    message: str
+    partial: bool = False
+    confounded: list[str] = field(default_factory=list)
+    closest: str | None = None
+    more_measurements: int | None = None
+    where: dict | None = None
+    tests: list[CandidateTest] = field(default_factory=list)
+    structure_used: list[dict] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        return {"outcome": self.outcome, "missing_effect": self.missing_effect, "covariate": self.covariate,
+                "period": self.period, "message": self.message, "partial": self.partial,
+                "confounded": self.confounded, "closest": self.closest,
+                "more_measurements": self.more_measurements, "where": self.where}
+
+
+# ---------------------------------------------------------------------------
+# pieces
+
+
+def nested_f_test(rss0: float, k0: int, rss1: float, k1: int, n: int) -> tuple[float, float]:
+    """Return (F, p) of the nested least-squares models (k1 > k0 free parameters; Seber & Wild 1989, 5.3)."""
+    dk, dof = k1 - k0, n - k1
+    if dk <= 0 or dof <= 0 or rss1 <= 0:
+        return float("nan"), float("nan")
+    F = max(rss0 - rss1, 0.0) / dk / (rss1 / dof)
+    return float(F), float(stats.f.sf(F, dk, dof))
+
+
+def aicc(rss: float, n: int, k: int) -> float:
+    """Return the small-sample Akaike criterion of a Gaussian least-squares fit with k free parameters
+    (+ the noise variance; Hurvich & Tsai 1989, Biometrika 76, 297; Burnham & Anderson 2002, section 2.4)."""
+    kk = k + 1
+    if n - kk - 1 <= 0 or rss <= 0:
+        return float("inf")
+    return float(n * math.log(rss / n) + 2 * kk + 2 * kk * (kk + 1) / (n - kk - 1))
+
+
+def collinear_groups(covariates: Mapping[str, np.ndarray], threshold: float = COLLINEAR_R) -> list[list[str]]:
+    """Return groups of covariates whose values are (nearly) collinear: max(|Pearson|, |Spearman|) >= threshold."""
+    names = [c for c, x in covariates.items() if np.unique(np.asarray(x, float)).size >= 2]
+    parent = {c: c for c in names}
+
+    def find(c):
+        while parent[c] != c:
+            c = parent[c]
+        return c
+
+    for i, a in enumerate(names):
+        xa = np.asarray(covariates[a], float)
+        for b in names[i + 1:]:
+            xb = np.asarray(covariates[b], float)
+            r = max(abs(np.corrcoef(xa, xb)[0, 1]), abs(stats.spearmanr(xa, xb)[0]))
+            if np.isfinite(r) and r >= threshold:
+                parent[find(b)] = find(a)
+    groups: dict[str, list[str]] = {}
+    for c in names:
+        groups.setdefault(find(c), []).append(c)
+    return [g for g in groups.values() if len(g) > 1]
+
+
+def _partners(cov: str, groups: list[list[str]]) -> list[str]:
+    for g in groups:
+        if cov in g:
+            return g
+    return [cov]
+
+
+def expected_cv_inflation(n: int, k: int, n_folds: int) -> float:
+    """Return E[held-out MSE]/sigma^2 of a correct linear model: 1 + k / n_train (n_train = n (K-1)/K)."""
+    n_train = max(n * (n_folds - 1) / max(n_folds, 1), k + 1)
+    return 1.0 + k / n_train
+
+
+def measurements_needed(f_stat: float, dk: int, n: int, k1: int, alpha: float,
+                        power: float = TARGET_POWER) -> int | None:
+    """Return roughly how many measurements in all (same design, scaled) would make an effect like this one
+    detectable: the smallest n' > n at which the F test at ``alpha`` has the given power.
+
+    The noncentrality is estimated as lambda = dk (F - 1) (its unbiased estimate, floored at 0) and grows in
+    proportion to n; power from the noncentral F distribution with n' - k1 residual degrees of freedom.
+    """
+    lam = dk * (f_stat - 1.0)
+    if not np.isfinite(lam) or lam <= 0.05:
+        return None
+    for m in range(n + 1, 100 * n + 1):
+        dof = m - k1
+        if dof < 1:
+            continue
+        crit = stats.f.isf(alpha, dk, dof)
+        if stats.ncf.sf(crit, dk, dof, lam * m / n) >= power:
+            return m
+    return None
+
+
+def where_to_measure(diff: np.ndarray, covariates: Mapping[str, np.ndarray], names: Sequence[str]) -> dict | None:
+    """Return {covariate, from, to} of the range where the candidate departs most from the model as is."""
+    d = np.abs(np.asarray(diff, float))
+    if d.size == 0 or not np.any(d > 0):
+        return None
+    best = None
+    for c in names:
+        if c not in covariates:
+            continue
+        x = np.asarray(covariates[c], float)
+        if np.unique(x).size < 2:
+            continue
+        sel = d >= 0.5 * d.max()
+        rec = {"covariate": c, "from": float(x[sel].min()), "to": float(x[sel].max())}
+        span = float(x.max() - x.min())
+        frac = (rec["to"] - rec["from"]) / span if span > 0 else 1.0
+        if best is None or frac < best[0]:
+            best = (frac, rec)
+    return None if best is None else best[1]
+
+
+def _significant(struct: Sequence[dict], alpha: float, serial: bool = False) -> list[dict]:
+    """Return significant structure records, most significant first; ``serial`` picks the ones that correlated
+    noise alone explains (see residual_tests.structure_tests), else the others."""
+    return sorted([s for s in struct if s.get("p_adjusted", 1.0) < alpha and bool(s.get("serial")) == serial],
+                  key=lambda s: s["p_value"])
+
+
+def whitened_rss(r: np.ndarray, order: np.ndarray, segment: np.ndarray, rho: float) -> float:
+    """Return the residual sum of squares after AR(1) whitening along a record (Prais-Winsten:
+    w_t = (r_t - rho r_(t-1)) / sqrt(1 - rho^2), the first reading of each segment kept)."""
+    ro = np.asarray(r, float)[order]
+    seg = np.asarray(segment)[order]
+    same = np.r_[False, seg[1:] == seg[:-1]]
+    w = ro.copy()
+    w[same] = (ro[same] - rho * ro[np.flatnonzero(same) - 1]) / math.sqrt(max(1 - rho * rho, 1e-6))
+    return float(w @ w)
+
+
+def _rss_pair(y, base: FitSummary, c: FitSummary, corr: dict | None) -> tuple[float, float]:
+    """Return (RSS of the model as is, RSS of the candidate); whitened with the candidate's own residual
+    lag-1 correlation when the noise is serially correlated (a candidate that only soaks up correlated
+    noise gains little once whitened; one that removes a real effect leaves white residuals)."""
+    if not corr:
+        return base.rss, c.rss
+    from .residual_tests import lag1_correlation
+
+    o, sg = corr["_order"], corr["_segment"]
+    rho = lag1_correlation(y - c.pred, o, sg)[0]
+    rho = float(np.clip(rho if np.isfinite(rho) else 0.0, 0.0, 0.95))
+    return whitened_rss(y - base.pred, o, sg, rho), whitened_rss(y - c.pred, o, sg, rho)
+
+
+def _period(struct: Sequence[dict], cov: str, alpha: float) -> float | None:
+    for s in struct:
+        if s["covariate"] == cov and s["test"] == "periodogram" and s["p_adjusted"] < alpha and s["periodic_period"]:
+            return float(s["periodic_period"])
+    return None
+
+
+def _g(v: float) -> str:
+    return "n/a" if v is None or not np.isfinite(v) else f"{v:.3g}"
+
+
+# ---------------------------------------------------------------------------
+# the verdict
+
+
+def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSummary], noise: Noise,
+                   covariates: Mapping[str, np.ndarray], structure: Sequence[dict], groups: np.ndarray,
+                   n_folds: int, ordered: Sequence[str] = (), unit: str = "", response: str = "response",
+                   alpha_effect: float = ALPHA_EFFECT, alpha_structure: float = ALPHA_STRUCTURE) -> Verdict:
+    """Return the verdict (one of four outcomes) from the fits' arrays; pure: no files, no figures.
+
+    y : observations per row [unit]; base : the model as is; candidates : model + one effect each
+    noise : the noise estimate; covariates : {column: values per row}; structure : residual-structure tests
+    of the model as is (each record with covariate, test, p_value, p_adjusted, periodic_period);
+    groups : cross-validation group per row; n_folds : K of the K-fold; ordered : covariates that form a
+    record (time, position), for which a period is reported; unit : response unit for messages.
+    """
+    y = np.asarray(y, float)
+    n = y.size
+    m = max(len(candidates), 1)
+    coll = collinear_groups(covariates)
+    tests: list[CandidateTest] = []
+    for c in candidates:
+        r0, r1 = _rss_pair(y, base, c, noise.correlated)
+        F, p = nested_f_test(r0, base.n_free, r1, c.n_free, n)
+        d, se = crossval.paired_difference(base.sq_err, c.sq_err, groups)
+        pa = min(1.0, p * m) if np.isfinite(p) else float("nan")
+        why = []
+        if not (np.isfinite(pa) and pa < alpha_effect):
+            why.append(f"F test p = {_g(p)} (x {m} candidates = {_g(pa)}) not < {alpha_effect:g}")
+        if not d > 0:
+            why.append("no lower held-out error")
+        tests.append(CandidateTest(c.name, F, p, pa, d, se, not why, "passes" if not why else "; ".join(why)))
+
+    # expected held-out error of a model that misses nothing, and its uncertainty
+    infl = expected_cv_inflation(n, base.n_free, n_folds)
+    cv_base = base.cv_rmse
+    cv_se = crossval.cv_rmse(base.sq_err, groups)[1]
+    expect = noise.sd * math.sqrt(infl) if np.isfinite(noise.sd) else float("nan")
+    comb_se = math.hypot(cv_se if np.isfinite(cv_se) else 0.0, (noise.se or 0.0) * math.sqrt(infl))
+    excess = noise.reliable and np.isfinite(expect) and cv_base > expect + EXCESS_Z * comb_se
+    noise_txt = (f"noise {_g(noise.sd)} ± {_g(noise.se)} {unit}" if noise.reliable else
+                 f"the noise cannot be estimated (data spread {_g(noise.sd)} {unit} is only an upper bound)")
+    corr_txt = ""
+    if noise.correlated:
+        cc = noise.correlated
+        corr_txt = (f"; successive residuals along {cc['covariate']} are correlated (lag-1 correlation "
+                    f"{cc['rho']:.2f}): correlated sensor noise or structure no model tried describes; periods and "
+                    "candidates were tested against that correlated background")
+
+    sup = [(t, c) for t, c in zip(tests, candidates) if t.supported]
+    if sup:
+        crit = {c.name: aicc(c.rss, n, c.n_free) for _, c in sup}
+        # a candidate whose own parameters end at a bound is strained to fit: any unstrained one goes first
+        t, win = min(sup, key=lambda tc: (bool(tc[1].at_bound), crit[tc[1].name], tc[1].n_free))
+        close = [c.name for _, c in sup if c is not win and crit[c.name] - crit[win.name] < CLOSE_AICC]
+        own = [c for c in win.covariates if c in covariates]
+        conf = sorted({p for c in own for p in _partners(c, coll)} - set(own)) if own else []
+        cov = own[0] if own else None
+        if conf:
+            # the winning effect's covariate moves with another: the data cannot say which one acts
+            others = [c.name for tt, c in sup if c is not win and set(c.covariates) & set(conf)]
+            msg = (f"{response} depends on {' or '.join(own + conf)}, which move together in these data "
+                   f"(collinear, |r| >= {COLLINEAR_R:g}): they cannot be separated. {win.name} fits "
+                   f"(held-out RMSE {_g(cv_base)} -> {_g(win.cv_rmse)} {unit}, F test p = {_g(t.p_value)})"
+                   + (f", and so does {', '.join(others)}" if others else "")
+                   + f". Measure with {conf[0]} varied at fixed {own[0]} (or the other way round) to tell them "
+                   f"apart; {noise_txt}{corr_txt}")
+            return Verdict("cannot_tell", None, None, None, msg, confounded=own + conf, closest=win.name,
+                           tests=tests)
+        left = _significant(win.structure, alpha_structure)
+        own_left = [s for s in left if s["covariate"] in own]
+        alt = (f"; {', '.join(close)} fits almost as well (AICc within {CLOSE_AICC:g}): the data barely tell "
+               "them apart" if close else "")
+        msg = (f"adding {win.name} cuts held-out RMSE from {_g(cv_base)} to {_g(win.cv_rmse)} {unit} "
+               f"(F test p = {_g(t.p_value)}, {m} candidates tried{alt}); {noise_txt}{corr_txt}")
+        if own_left:
+            s = own_left[0]
+            per = _period(win.structure, s["covariate"], alpha_structure) if s["covariate"] in ordered else None
+            ptxt = f", period {_g(per)}" if per else ""
+            # share of the excess held-out error (above the noise level) the winner removes
+            floor = expect ** 2 if np.isfinite(expect) and noise.reliable else 0.0
+            excess2 = cv_base ** 2 - floor
+            share = (cv_base ** 2 - win.cv_rmse ** 2) / excess2 if excess2 > 0 else 0.0
+            periodic = any(x["test"] == "periodogram" for x in own_left)
+            if share >= PARTIAL_SHARE and not periodic:
+                msg = (f"partial step: {msg}. Structure remains against {s['covariate']} ({s['test']}, "
+                       f"p = {_g(s['p_value'])}{ptxt}): a second effect or a plugin; add {win.name} and run "
+                       "diagnose again")
+                return Verdict("missing_effect", win.name, s["covariate"], per, msg, partial=True, tests=tests,
+                               structure_used=left)
+            per = _period(structure, s["covariate"], alpha_structure) if s["covariate"] in ordered else per
+            ptxt = f" (period {_g(per)})" if per else ""
+            how = ("leaves a periodic residual" if periodic else
+                   f"removes only {100 * share:.0f} % of the error above the noise")
+            msg = (f"an effect that is not built in depends on {s['covariate']}{ptxt}: write a plugin. The closest "
+                   f"built-in effect, {win.name}, {how} "
+                   f"(held-out RMSE {_g(cv_base)} -> {_g(win.cv_rmse)} {unit}): structure remains against "
+                   f"{s['covariate']} ({s['test']}, p = {_g(s['p_value'])}); {noise_txt}{corr_txt}")
+            return Verdict("not_built_in", None, s["covariate"], per, msg, closest=win.name, tests=tests,
+                           structure_used=left)
+        if left:
+            msg += (f". Structure remains against {left[0]['covariate']} ({left[0]['test']}, "
+                    f"p = {_g(left[0]['p_value'])}): after adding it, run diagnose again")
+        return Verdict("missing_effect", win.name, cov, None, msg, tests=tests, structure_used=left)
+
+    sig = _significant(structure, alpha_structure)
+    if sig:
+        cov = sig[0]["covariate"]
+        group = _partners(cov, coll)
+        if len(group) > 1:
+            msg = (f"the residuals depend on {' or '.join(group)}, which move together in these data (collinear): "
+                   f"the data cannot tell which one matters ({sig[0]['test']} p = {_g(sig[0]['p_value'])}; no "
+                   f"built-in candidate passes the rule). Measure with one varied at fixed others; {noise_txt}"
+                   f"{corr_txt}")
+            return Verdict("cannot_tell", None, None, None, msg, confounded=group, tests=tests, structure_used=sig)
+        per = _period(structure, cov, alpha_structure) if cov in ordered else None
+        ptxt = f" (period {_g(per)})" if per else ""
+        msg = (f"an effect that is not built in depends on {cov}{ptxt}: write a plugin ({sig[0]['test']} "
+               f"p = {_g(sig[0]['p_value'])}; no built-in candidate passes the rule; {noise_txt}{corr_txt})")
+        return Verdict("not_built_in", None, cov, per, msg, tests=tests, structure_used=sig)
+
+    serial = _significant(structure, alpha_structure, serial=True)
+    if serial and noise.correlated:
+        cov = noise.correlated["covariate"]
+        msg = (f"the data cannot tell: the residuals drift along {cov} ({serial[0]['test']} p = "
+               f"{_g(serial[0]['p_value'])}) but successive readings are correlated (lag-1 correlation "
+               f"{noise.correlated['rho']:.2f}), which correlated sensor noise alone produces; no built-in candidate "
+               f"passes the rule and no period stands out above the correlated-noise background. Repeat the run "
+               f"(replicates at the same {cov}) to tell a slow effect from correlated noise; {noise_txt}")
+        return Verdict("cannot_tell", None, None, None, msg, tests=tests, structure_used=serial)
+    # nothing passes: "nothing is missing" only if the numbers agree
+    if noise.reliable and not excess:
+        msg = (f"nothing is missing: held-out RMSE {_g(cv_base)} {unit} is within {EXCESS_Z:g} standard errors "
+               f"of the {_g(expect)} {unit} expected from the {noise_txt}{corr_txt}")
+        return Verdict("nothing_missing", None, None, None, msg, tests=tests)
+    closest, more, where = None, None, None
+    if tests:
+        i = int(np.nanargmin([t.p_value if np.isfinite(t.p_value) else np.inf for t in tests]))
+        ct, cc = tests[i], candidates[i]
+        closest = ct.name
+        dk = max(cc.n_free - base.n_free, 1)
+        more = measurements_needed(ct.f_stat, dk, n, cc.n_free, alpha_effect / m)
+        where = where_to_measure(cc.pred - base.pred, covariates, list(cc.covariates) or list(covariates))
+    why = (f"held-out RMSE {_g(cv_base)} {unit} exceeds the {_g(expect)} {unit} expected from the noise by more "
+           f"than {EXCESS_Z:g} standard errors ({_g(comb_se)})" if noise.reliable else
+           f"with {n} points and no replicates {noise_txt}")
+    msg = f"the data cannot tell: {why}, but no candidate passes the rule"
+    if closest:
+        msg += f"; closest: {closest} (F test p = {_g(tests[i].p_value)})"
+        if more:
+            msg += f"; roughly {more} measurements in all (now {n}) would settle it"
+            if where:
+                msg += f", most useful at {where['covariate']} {_g(where['from'])}-{_g(where['to'])}"
+    if noise.reliable:
+        msg += f"; {noise_txt}{corr_txt}"
+    return Verdict("cannot_tell", None, None, None, msg, closest=closest, more_measurements=more, where=where,
+                   tests=tests)

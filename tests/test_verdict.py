@@ -1,0 +1,127 @@
+"""decide_verdict, the pure verdict of diagnose: its four outcomes from plain arrays (no files, no model kind)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from capsule_cli.steps.verdict import (FitSummary, Noise, aicc, collinear_groups, decide_verdict,
+                                       measurements_needed, nested_f_test)
+
+N = 24
+RNG = np.random.default_rng(5)
+X = np.linspace(0.2, 12, N)
+GROUPS = np.arange(N)
+NOISE = Noise(1.0, 0.15, True, "test")
+
+
+def fit(name, y, pred, k, cov=(), sq_scale=1.0, structure=None):
+    """A FitSummary whose held-out errors are its residuals inflated by the usual K-fold factor."""
+    r = y - pred
+    return FitSummary(name, k, float(r @ r), pred, (r ** 2) * sq_scale, tuple(cov), structure or [])
+
+
+def rec(cov, test, p, m=8, period=None, serial=False):
+    return {"covariate": cov, "test": test, "statistic": 1.0, "p_value": p, "p_adjusted": min(1.0, p * m),
+            "periodic_period": period, "serial": serial}
+
+
+def test_f_test_matches_scipy_and_aicc_penalises_parameters():
+    F, p = nested_f_test(30.0, 1, 20.0, 3, 24)
+    assert F == pytest.approx((10 / 2) / (20 / 21))
+    assert p == pytest.approx(stats.f.sf(F, 2, 21))
+    assert aicc(20.0, 24, 3) - aicc(20.0, 24, 2) > 2.0  # one more parameter at equal RSS costs more than 2
+
+
+def test_measurements_needed_grows_as_the_effect_shrinks():
+    n_big = measurements_needed(3.0, 1, 20, 2, 0.0025)
+    n_small = measurements_needed(1.8, 1, 20, 2, 0.0025)
+    assert 20 < n_big < n_small
+    assert measurements_needed(0.9, 1, 20, 2, 0.0025) is None  # no sign of an effect: no promise
+
+
+def test_collinear_covariates_are_grouped():
+    t = np.arange(30.0)
+    g = collinear_groups({"time_s": t, "position_mm": 2 * t + 0.01 * RNG.standard_normal(30),
+                          "speed_mm_s": RNG.uniform(1, 10, 30)})
+    assert g == [["time_s", "position_mm"]]
+
+
+def test_a_strong_candidate_is_named():
+    y = 8 + 1.5 * np.sqrt(X) + RNG.standard_normal(N)
+    base = fit("", y, np.full(N, y.mean()), 1, sq_scale=1.1)
+    good = fit("speed_power_law", y, 8 + 1.5 * np.sqrt(X), 3, ("speed_mm_s",), 1.1)
+    v = decide_verdict(y, base, [good], NOISE, {"speed_mm_s": X}, [], GROUPS, 5)
+    assert v.outcome == "missing_effect" and v.missing_effect == "speed_power_law" and not v.partial
+    assert v.tests[0].supported and v.tests[0].p_adjusted < 0.01
+
+
+def test_nothing_missing_only_when_the_held_out_error_agrees():
+    y = 10 + RNG.standard_normal(N)
+    base = fit("", y, np.full(N, y.mean()), 1, sq_scale=1.05)
+    weak = fit("viscous", y, y.mean() + 0.01 * (X - X.mean()), 2, ("speed_mm_s",), 1.05)
+    v = decide_verdict(y, base, [weak], NOISE, {"speed_mm_s": X}, [], GROUPS, 5)
+    assert v.outcome == "nothing_missing" and v.missing_effect is None
+    # same fits, but the noise estimate says the held-out error is twice the noise: cannot tell
+    v2 = decide_verdict(y, base, [weak], Noise(0.5, 0.05), {"speed_mm_s": X}, [], GROUPS, 5)
+    assert v2.outcome == "cannot_tell" and "nothing is missing" not in v2.message
+    assert v2.closest == "viscous"
+
+
+def test_cannot_tell_names_the_closest_candidate_and_how_many_more_measurements():
+    y = 10 + 0.25 * (X - X.mean()) + RNG.standard_normal(N)  # a real but weak slope
+    base = fit("", y, np.full(N, y.mean()), 1, sq_scale=1.1)
+    slope = np.polyfit(X, y, 1)
+    cand = fit("viscous", y, np.polyval(slope, X), 2, ("speed_mm_s",), 1.1)
+    v = decide_verdict(y, base, [cand] * 1, Noise(0.7, 0.05), {"speed_mm_s": X}, [], GROUPS, 5,
+                       alpha_effect=1e-6)  # a strict rule: the slope is not supported
+    assert v.outcome == "cannot_tell" and v.closest == "viscous"
+    assert v.more_measurements is not None and v.more_measurements > N
+    assert v.where["covariate"] == "speed_mm_s"
+    assert f"{v.more_measurements} measurements" in v.message
+
+
+def test_collinear_covariates_are_named_together_not_one_alone():
+    t = np.arange(N, dtype=float)
+    y = 10 + 3 * np.exp(-t / 5) + RNG.standard_normal(N)
+    base = fit("", y, np.full(N, y.mean()), 1, sq_scale=1.1)
+    cand = fit("viscoelastic_relaxation", y, 10 + 3 * np.exp(-t / 5), 3, ("time_s",), 1.1)
+    v = decide_verdict(y, base, [cand], NOISE, {"time_s": t, "position_mm": 2 * t}, [], GROUPS, 5)
+    assert v.outcome == "cannot_tell" and v.missing_effect is None
+    assert set(v.confounded) == {"time_s", "position_mm"} and "cannot be separated" in v.message
+
+
+def test_structure_without_a_candidate_names_a_covariate_with_its_period():
+    y = 10 + RNG.standard_normal(N)
+    base = fit("", y, np.full(N, y.mean()), 1)
+    pos = np.arange(N) * 4.0
+    st = [rec("position_mm", "periodogram", 1e-6, period=37.0), rec("speed_mm_s", "trend", 0.3)]
+    v = decide_verdict(y, base, [], NOISE, {"position_mm": pos, "speed_mm_s": RNG.permutation(X)}, st, GROUPS, 5,
+                       ordered=["position_mm"])
+    assert v.outcome == "not_built_in" and v.covariate == "position_mm" and v.period == pytest.approx(37.0)
+
+
+def test_structure_that_correlated_noise_explains_is_no_finding():
+    y = 10 + RNG.standard_normal(N)
+    base = fit("", y, np.full(N, y.mean()), 1)
+    t = np.arange(N, dtype=float)
+    st = [rec("time_s", "runs", 1e-8, serial=True), rec("time_s", "periodogram", 0.5, period=7.0)]
+    corr = {"covariate": "time_s", "rho": 0.8, "p_value": 1e-9, "_order": np.arange(N), "_segment": np.zeros(N)}
+    v = decide_verdict(y, base, [], Noise(1.0, 0.2, True, "t", corr), {"time_s": t}, st, GROUPS, 5,
+                       ordered=["time_s"])
+    assert v.outcome == "cannot_tell" and v.covariate is None and v.period is None
+    assert "correlated" in v.message
+
+
+def test_partial_step_when_the_winner_removes_most_of_the_error():
+    y = 10 + 4 * np.sqrt(X) + 1.2 * np.exp(-X) + RNG.standard_normal(N)
+    base = fit("", y, np.full(N, y.mean()), 1, sq_scale=1.1)
+    left = [rec("speed_mm_s", "lack_of_fit", 1e-5)]
+    win = fit("speed_power_law", y, 10 + 4 * np.sqrt(X), 3, ("speed_mm_s",), 1.1, structure=left)
+    v = decide_verdict(y, base, [win], NOISE, {"speed_mm_s": X}, [], GROUPS, 5)
+    assert v.outcome == "missing_effect" and v.partial and v.missing_effect == "speed_power_law"
+    assert v.message.startswith("partial step")
+    # a winner that removes little of the error and leaves structure on its covariate: its form does not fit
+    poor = fit("viscous", y, base.pred + 0.08 * (y - base.pred), 2, ("speed_mm_s",), 1.1, structure=left)
+    v2 = decide_verdict(y, base, [poor], NOISE, {"speed_mm_s": X}, [], GROUPS, 5, alpha_effect=1.0)
+    assert v2.outcome == "not_built_in" and v2.covariate == "speed_mm_s" and v2.closest == "viscous"
