@@ -53,7 +53,9 @@ I_MM, I_MC, I_K, I_C, I_G1, I_K1, I_C1, I_G2, I_KB, I_CB, I_BACK = range(11)
 I_PD, I_F, I_WAVE, I_DUTY = 11, 12, 13, 14
 I_PB, I_L0, I_VMIN, I_LA, I_LN, I_LB, I_LAW = 15, 16, 17, 18, 19, 20, 21
 I_XS, I_VS, I_FS = 22, 23, 24
-N_PARAMS = 25
+# dynamics effects (physics.md section 3, "Dynamics effects"); 0 = off
+I_CV, I_KAP, I_VFAST = 25, 26, 27
+N_PARAMS = 28
 
 # options vector
 O_NPER, O_ENERGY, O_RTOL, O_ZENO, O_MAXSTEPS = 0, 1, 2, 3, 4
@@ -126,11 +128,27 @@ def contact_of(p, xr):
 
 
 @njit(cache=True)
-def kinetic_level(p, V):
-    """Return the kinetic friction level [N] at slip speed |V| [m/s] (eqs 21-23, regularised)."""
+def tilt_factor(p, xr):
+    """Return the tilt scaling max(0, 1 + kappa x_r / G_1) of the friction levels (effect
+    ``tilt_friction``, physics.md section 3; seed 002 Fig 5); exactly 1 when kappa = 0."""
+    if p[I_KAP] == 0.0:
+        return 1.0
+    fac = 1.0 + p[I_KAP] * xr / p[I_G1]
+    return fac if fac > 0.0 else 0.0
+
+
+@njit(cache=True)
+def kinetic_level(p, V, xr):
+    """Return the resisting force [N] on a shell slipping at speed |V| [m/s] with relative
+    displacement x_r [m]: the friction level (Coulomb, or the speed law of eqs 22-23 held below
+    V_min), scaled by the tilt factor, plus viscous drag c_v |V| (effect ``viscous_drag``)."""
     if p[I_LAW] < 0.5 or V < p[I_VMIN]:
-        return p[I_L0]
-    return p[I_LA] * V ** p[I_LN] + p[I_LB]
+        L = p[I_L0]
+    else:
+        L = p[I_LA] * V ** p[I_LN] + p[I_LB]
+    if p[I_KAP] != 0.0:
+        L *= tilt_factor(p, xr)
+    return L + p[I_CV] * V
 
 
 @njit(cache=True)
@@ -167,6 +185,9 @@ def decide_shell(p, contact, xr, vr, fe):
     Pb = p[I_PB]
     if Pb == np.inf:
         return STICK
+    tilt = p[I_KAP] != 0.0
+    if tilt:
+        Pb *= tilt_factor(p, xr)
     K, C, F0 = contact_terms(p, contact)
     F = K * xr + C * vr + F0
     tol = 1e-12 * p[I_FS]
@@ -177,14 +198,17 @@ def decide_shell(p, contact, xr, vr, fe):
     if aF <= Pb + tol:
         ar = (fe - F) / p[I_MM]
         Fdot = K * vr + C * ar
-        if F * Fdot <= 0.0:
+        if tilt:
+            # the threshold moves with x_r: stick when |F_i| - P_b(x_r) is not increasing
+            dPb = p[I_PB] * p[I_KAP] / p[I_G1] * vr if Pb > 0.0 else 0.0
+            if sgn * Fdot - dPb <= 0.0:
+                return STICK
+        elif F * Fdot <= 0.0:
             return STICK
-    L0 = p[I_L0]
-    if p[I_LAW] > 0.5 and p[I_VMIN] <= 0.0:
-        L0 = p[I_LB]
+    L0 = kinetic_level(p, 0.0, xr)  # level at 0+ (held value, or the literal law's b)
     if aF - L0 < -tol:
         return -1
-    fast = p[I_LAW] > 0.5 and p[I_VMIN] <= 0.0
+    fast = p[I_VFAST] <= 0.0
     if sgn > 0:
         return FAST_POS if fast else SLIP_POS
     return FAST_NEG if fast else SLIP_NEG
@@ -420,12 +444,14 @@ NY = 8
 
 @njit(cache=True)
 def rk_rhs(p, contact, sgn, s, fe_level, y, dy):
-    """Right-hand side in (x_r, v_r, V_c, X_c, W_drive, D_damp, D_contact, D_friction)."""
+    """Right-hand side in (x_r, v_r, V_c, X_c, W_drive, D_damp, D_contact, D_friction).
+
+    D_friction includes the viscous drag c_v V_c^2 (the resisting force of :func:`kinetic_level`)."""
     K, C, F0 = contact_terms(p, contact)
     fe = drive_force(p, s, fe_level)
     Fi = K * y[0] + C * y[1] + F0
     V = abs(y[2])
-    L = kinetic_level(p, V)
+    L = kinetic_level(p, V, y[0])
     ac = (-sgn * L + Fi) / p[I_MC]
     am = (fe - Fi) / p[I_MM]
     dy[0] = y[1]
@@ -452,7 +478,7 @@ def rk_event_value(p, contact, sgn, j, y):
     G1 = p[I_G1]
     G2 = p[I_G2]
     if j == 2:
-        return sgn * y[2] - p[I_VMIN]
+        return sgn * y[2] - p[I_VFAST]
     if contact == 0:
         if j == 0:
             return G1 - y[0]
@@ -549,7 +575,7 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
         if shell < 0:
             return STATUS_ILLPOSED, 0.0, samples, 0, events, 0, periods, energy, final
     else:
-        fast = p[I_LAW] > 0.5 and abs(Vc) >= p[I_VMIN]
+        fast = abs(Vc) >= p[I_VFAST]
         if Vc > 0:
             shell = FAST_POS if fast else SLIP_POS
         else:
@@ -645,6 +671,12 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
                     for j in range(NB):
                         evc[ne, j] = -cF[j]
                         evc[ne + 1, j] = cF[j]
+                    if p[I_KAP] != 0.0:
+                        # tilt: breakaway P_b (1 + kappa x_r / G_1), linear in the state
+                        kq = p[I_PB] * p[I_KAP] / G1
+                        for j in range(NB):
+                            evc[ne, j] += kq * coef[0, j]
+                            evc[ne + 1, j] += kq * coef[0, j]
                     evc[ne, 4] += p[I_PB]
                     evc[ne + 1, 4] += p[I_PB]
                     evcode[ne] = EV_BREAK_POS
@@ -659,10 +691,10 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
                 evcode[ne] = EV_SLIP_END
                 evtol[ne] = tol_v
                 ne += 1
-                if p[I_LAW] > 0.5 and p[I_VMIN] < np.inf:
+                if p[I_VFAST] < np.inf:
                     for j in range(NB):
                         evc[ne, j] = -sg * coef[3, j]
-                    evc[ne, 4] += p[I_VMIN]
+                    evc[ne, 4] += p[I_VFAST]
                     evcode[ne] = EV_FAST_ON
                     evtol[ne] = tol_v
                     ne += 1
@@ -1050,7 +1082,7 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
         elif ev == EV_FAST_ON:
             new_shell = FAST_POS if shell == SLIP_POS else FAST_NEG
         elif ev == EV_FAST_OFF:
-            if p[I_VMIN] > 0.0:
+            if p[I_VFAST] > 0.0:
                 new_shell = SLIP_POS if shell == FAST_POS else SLIP_NEG
             else:
                 Vc = 0.0

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from .model import CapsuleModel, Drive, Friction
+from .model import CapsuleModel, Drive, Friction, effective_friction
 
 
 @dataclass
@@ -33,6 +33,7 @@ class _Sys:
     def __init__(self, model: CapsuleModel, drive: Drive, friction: Friction):
         self.m = model
         self.d = drive
+        friction = effective_friction(model, friction)
         self.fr = friction
         self.Mm = model.mass_magnet_kg
         self.Mc = model.mass_capsule_kg
@@ -42,7 +43,20 @@ class _Sys:
         self.T = 1.0 / drive.frequency_Hz
         self.nrhs = 0
 
-    def level(self, V):
+    def tilt(self, xr):
+        """Tilt scaling of the friction levels, max(0, 1 + kappa x_r / G_1) (tilt_friction)."""
+        return max(0.0, 1.0 + self.m.tilt_kappa * xr / self.m.gap_m)
+
+    def tilt_lin(self, xr):
+        """The tilt factor without the clamp (1 + kappa x_r / G_1): a smooth event function whose
+        sign changes exactly where the clamped threshold is crossed while |F_i| > 0."""
+        return 1.0 + self.m.tilt_kappa * xr / self.m.gap_m
+
+    def level(self, V, xr=0.0):
+        """Resisting force on the slipping shell: tilt-scaled friction level plus drag c_v |V|."""
+        return self.tilt(xr) * self._law(V) + self.m.drag_Ns_m * abs(V)
+
+    def _law(self, V):
         if not self.law:
             return self.L0
         if self.fr.literal:
@@ -69,7 +83,7 @@ class _Sys:
     def contact_of(self, xr):
         if xr >= self.m.gap_m:
             return 1
-        if self.m.double_sided and xr <= -self.m.gap_back_m:
+        if self.m.back_active and xr <= -self.m.gap_back_m:
             return 2
         return 0
 
@@ -79,19 +93,22 @@ class _Sys:
             return 0
         F = self.fi(contact, xr, vr)
         tol = 1e-11 * max(self.d.amplitude_N, self.Pb, 1e-9)
-        if abs(F) < self.Pb - tol:
+        Pb = self.Pb * self.tilt(xr)
+        if abs(F) < Pb - tol:
             return 0
         sgn = 1 if F > 0 else -1
-        if abs(F) <= self.Pb + tol:
+        if abs(F) <= Pb + tol:
             # at the threshold: stick if F_i moves back inside (its rate with the shell held)
             m = self.m
             K = m.spring_N_m + (m.constraint_N_m if contact == 1 else 0) + (m.constraint_back_N_m if contact == 2 else 0)
             C = m.damping_Ns_m + (m.constraint_damping_Ns_m if contact == 1 else 0) + \
                 (m.constraint_back_damping_Ns_m if contact == 2 else 0)
             Fdot = K * vr + C * (fe - F) / self.Mm
-            if F * Fdot <= 0:
+            # the threshold P_b (1 + kappa x_r / G_1) moves with x_r (tilt_friction)
+            dPb = self.Pb * self.m.tilt_kappa / self.m.gap_m * vr if Pb > 0 else 0.0
+            if sgn * Fdot - dPb <= 0:
                 return 0
-        L0 = 1e-3 * self.fr.b_mN if (self.law and self.fr.literal) else self.L0
+        L0 = (1e-3 * self.fr.b_mN if (self.law and self.fr.literal) else self.L0) * self.tilt(xr)
         if abs(F) - L0 < -tol:
             return None
         return sgn
@@ -108,7 +125,7 @@ class _Sys:
             am = (fe - F) / Mm
             if shell == 0:
                 return np.array([y[2], 0.0, am, 0.0])
-            ac = (-shell * self.level(y[3]) + F) / Mc
+            ac = (-shell * self.level(y[3], xr) + F) / Mc
             return np.array([y[2], y[3], am, ac])
         return f
 
@@ -176,7 +193,7 @@ def reference_run(model: CapsuleModel, drive: Drive, friction: Friction, periods
                 G1, G2 = m.gap_m, m.gap_back_m
                 if contact == 0:
                     mk(lambda tt, yy: G1 - (yy[0] - yy[1]), "front_contact_on")
-                    if m.double_sided:
+                    if m.back_active:
                         mk(lambda tt, yy: (yy[0] - yy[1]) + G2, "back_contact_on")
                 elif contact == 1:
                     mk(lambda tt, yy: (yy[0] - yy[1]) - G1, "front_contact_off")
@@ -185,8 +202,10 @@ def reference_run(model: CapsuleModel, drive: Drive, friction: Friction, periods
                 c_ = contact
                 if shell == 0:
                     if not math.isinf(S.Pb):
-                        mk(lambda tt, yy: S.Pb - S.fi(c_, yy[0] - yy[1], yy[2] - yy[3]), "break+")
-                        mk(lambda tt, yy: S.Pb + S.fi(c_, yy[0] - yy[1], yy[2] - yy[3]), "break-")
+                        mk(lambda tt, yy: S.Pb * S.tilt_lin(yy[0] - yy[1]) - S.fi(c_, yy[0] - yy[1], yy[2] - yy[3]),
+                           "break+")
+                        mk(lambda tt, yy: S.Pb * S.tilt_lin(yy[0] - yy[1]) + S.fi(c_, yy[0] - yy[1], yy[2] - yy[3]),
+                           "break-")
                 else:
                     sh = shell
                     mk(lambda tt, yy: sh * yy[3], "slip_end")
