@@ -505,6 +505,20 @@ def _grow(ev, n):
 def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_cap):
     """Run n_transient + n_record excitation periods from state0; return the records.
 
+    Trajectory samples at t = j sample_dt (j < n_samples) after the transient; see
+    :func:`run_core_at` for the records.
+    """
+    times = np.arange(n_samples) * sample_dt
+    return run_core_at(p, opts, state0, n_transient, n_record, times, ev_cap)
+
+
+@njit(cache=True)
+def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
+    """Run n_transient + n_record excitation periods from state0; return the records.
+
+    sample_times : ascending times [s] after the transient at which the trajectory is sampled
+    exactly (closed form, or the adaptive segment's dense output).
+
     state0 = [x_r, v_r, X_c, V_c] [m, m/s] at phase 0 (time 0).
     Returns (status, status_time_s, samples, n_samples_written, events, n_events,
     periods, energy, final_state) where final_state = [x_r, v_r, X_c, V_c, contact, shell].
@@ -527,6 +541,7 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
     tol_v = 1e-13 * p[I_VS]
     tol_F = 1e-13 * p[I_FS]
 
+    n_samples = sample_times.shape[0]
     samples = np.zeros((n_samples, N_SAMPLE_COLS))
     rec_events = ev_cap != 0
     events = np.zeros((ev_cap if ev_cap > 0 else 64, 2))
@@ -802,7 +817,7 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
             # samples
             if recording and n_samples > 0:
                 while j_sample < n_samples:
-                    ts = j_sample * sample_dt - (period - n_transient) * T
+                    ts = sample_times[j_sample] - (period - n_transient) * T
                     if ts >= s + tau_ev:
                         break
                     tt = ts - s
@@ -814,7 +829,7 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
                     sXc = dot7(coef[2], Bs)
                     sVc = dot7(coef[3], Bs)
                     row = samples[j_sample]
-                    row[S_T] = rec_t0 + j_sample * sample_dt
+                    row[S_T] = rec_t0 + sample_times[j_sample]
                     row[S_XM] = sXc + sx
                     row[S_XC] = sXc
                     row[S_VM] = sVc + sv
@@ -980,7 +995,7 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
                 # samples
                 if recording and n_samples > 0:
                     while j_sample < n_samples:
-                        ts = j_sample * sample_dt - (period - n_transient) * T
+                        ts = sample_times[j_sample] - (period - n_transient) * T
                         if ts >= sa + th_stop * hh:
                             break
                         th = (ts - sa) / hh
@@ -988,7 +1003,7 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
                             th = 0.0
                         dense_eval(rc, th, yd)
                         row = samples[j_sample]
-                        row[S_T] = rec_t0 + j_sample * sample_dt
+                        row[S_T] = rec_t0 + sample_times[j_sample]
                         row[S_XM] = yd[3] + yd[0]
                         row[S_XC] = yd[3]
                         row[S_VM] = yd[2] + yd[1]

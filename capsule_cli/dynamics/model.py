@@ -144,14 +144,12 @@ def load_model(name: str = "prototype_one_sided") -> tuple[CapsuleModel, float |
         if mf.base not in BASE_PARAM_SETS:
             raise InputError(f"{name}: base '{mf.base}' is not a dynamics base model "
                              f"({', '.join(BASE_PARAM_SETS)})")
-        if mf.effects:
-            raise InputError(f"{name}: effects {mf.effects} on a dynamics model are not supported by this command; "
-                             "simulate and sweep run the base model")
-        params = dict(load_param_set(BASE_PARAM_SETS[mf.base]))
-        for key, val in mf.params.items():
-            params[key] = float(val if isinstance(val, (int, float)) else val.value)
+        from .system import resolve_params
+        given = {key: float(val if isinstance(val, (int, float)) else val.value) for key, val in mf.params.items()}
+        # the base's parameter set, the effects' start values, the file's values (effect terms as data)
+        params = resolve_params(mf.base, given, tuple(mf.effects), where=f"{name}: ")
         where = str(name)
-        double_sided = mf.base == "double_sided"
+        double_sided = mf.base == "double_sided" or "secondary_constraint" in mf.effects
     else:
         params = load_param_set(name)
         where = str(name)
