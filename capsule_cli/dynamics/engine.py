@@ -138,17 +138,23 @@ def tilt_factor(p, xr):
 
 
 @njit(cache=True)
-def kinetic_level(p, V, xr):
-    """Return the resisting force [N] on a shell slipping at speed |V| [m/s] with relative
-    displacement x_r [m]: the friction level (Coulomb, or the speed law of eqs 22-23 held below
-    V_min), scaled by the tilt factor, plus viscous drag c_v |V| (effect ``viscous_drag``)."""
+def friction_level(p, V, xr):
+    """Return the friction level [N] at slip speed V >= 0 [m/s] and relative displacement x_r [m]:
+    Coulomb, or the speed law of eqs 22-23 held below V_min, scaled by the tilt factor."""
     if p[I_LAW] < 0.5 or V < p[I_VMIN]:
         L = p[I_L0]
     else:
         L = p[I_LA] * V ** p[I_LN] + p[I_LB]
     if p[I_KAP] != 0.0:
         L *= tilt_factor(p, xr)
-    return L + p[I_CV] * V
+    return L
+
+
+@njit(cache=True)
+def kinetic_level(p, V, xr):
+    """Return the resisting force [N] on a shell slipping at speed |V| [m/s] with relative
+    displacement x_r [m]: :func:`friction_level` plus viscous drag c_v |V| (``viscous_drag``)."""
+    return friction_level(p, V, xr) + p[I_CV] * V
 
 
 @njit(cache=True)
@@ -450,9 +456,11 @@ def rk_rhs(p, contact, sgn, s, fe_level, y, dy):
     K, C, F0 = contact_terms(p, contact)
     fe = drive_force(p, s, fe_level)
     Fi = K * y[0] + C * y[1] + F0
-    V = abs(y[2])
-    L = kinetic_level(p, V, y[0])
-    ac = (-sgn * L + Fi) / p[I_MC]
+    # slip speed along the slip direction: > 0 during the slip; written without |.| so that the
+    # right-hand side continues smoothly past the slip's end inside the step that locates it
+    Vs = sgn * y[2]
+    L = friction_level(p, Vs if Vs > 0.0 else 0.0, y[0])
+    ac = (-sgn * L - p[I_CV] * y[2] + Fi) / p[I_MC]
     am = (fe - Fi) / p[I_MM]
     dy[0] = y[1]
     dy[1] = am - ac
@@ -461,7 +469,7 @@ def rk_rhs(p, contact, sgn, s, fe_level, y, dy):
     dy[4] = fe * (y[2] + y[1])
     dy[5] = p[I_C] * y[1] * y[1]
     dy[6] = (C - p[I_C]) * y[1] * y[1]
-    dy[7] = L * V
+    dy[7] = L * Vs + p[I_CV] * y[2] * y[2]
 
 
 @njit(cache=True)
@@ -753,11 +761,25 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                                 if dot7(evc[e], Bs) > evtol[e]:
                                     r = refine_root(evc[e], devc[e], tk, tb, s, sig, disc, w, Om, Bs)
                                     break
-                    elif dga[e] < 0.0 and dgb > 0.0:
+                    elif dgb > 0.0 and (dga[e] < 0.0 or (ta == 0.0 and abs(dga[e]) <= 1e-9 * dgb)):
+                        # an interior minimum of g (grazing). A mode that starts with g' ~ 0 (a slip
+                        # from a friction threshold: V_c' = 0) has g' of either sign at rounding
+                        # level at ta: probe geometrically for the first point where g' < 0.
                         for j in range(NB):
                             negc[j] = -devc[e, j]
                             negdc[j] = -ddevc[e, j]
-                        m = refine_root(negc, negdc, ta, tb, s, sig, disc, w, Om, Bs)
+                        t0m = ta
+                        if dga[e] >= 0.0:
+                            t0m = -1.0
+                            for kk in range(48):
+                                tk = ta + (tb - ta) * 2.0 ** (kk - 47)
+                                basis(tk, s, sig, disc, w, Om, Bs)
+                                if dot7(devc[e], Bs) < 0.0:
+                                    t0m = tk
+                                    break
+                        m = tb
+                        if t0m >= 0.0:
+                            m = refine_root(negc, negdc, t0m, tb, s, sig, disc, w, Om, Bs)
                         basis(m, s, sig, disc, w, Om, Bs)
                         gm = dot7(evc[e], Bs)
                         if gm < -evtol[e]:
