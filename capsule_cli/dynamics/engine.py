@@ -55,7 +55,9 @@ I_PB, I_L0, I_VMIN, I_LA, I_LN, I_LB, I_LAW = 15, 16, 17, 18, 19, 20, 21
 I_XS, I_VS, I_FS = 22, 23, 24
 # dynamics effects (physics.md section 3, "Dynamics effects"); 0 = off
 I_CV, I_KAP, I_VFAST = 25, 26, 27
-N_PARAMS = 28
+# substrate compliance: k_s = 1/compliance (0: rigid wall, off), c_s
+I_KS, I_CS = 28, 29
+N_PARAMS = 30
 
 # options vector
 O_NPER, O_ENERGY, O_RTOL, O_ZENO, O_MAXSTEPS = 0, 1, 2, 3, 4
@@ -63,6 +65,9 @@ N_OPTS = 5
 
 # shell states
 STICK, SLIP_POS, SLIP_NEG, FAST_POS, FAST_NEG = 0, 1, 2, 3, 4
+# substrate compliance: contact patch stuck (the shell moves on the presliding spring k_s, c_s);
+# patch sliding uses FAST_POS / FAST_NEG
+PATCH_STICK = 5
 
 # event codes (root events inside a mode)
 EV_NONE = -1
@@ -445,12 +450,15 @@ E1, E3, E4, E5, E6, E7 = (71.0 / 57600.0, -71.0 / 16695.0, 71.0 / 1920.0, -17253
                           22.0 / 525.0, -1.0 / 40.0)
 D1, D3, D4 = -12715105075.0 / 11282082432.0, 87487479700.0 / 32700410799.0, -10690763975.0 / 1880347072.0
 D5, D6, D7 = 701980252875.0 / 199316789632.0, -1453857185.0 / 822651844.0, 69997945.0 / 29380423.0
-NY = 8
+NY = 9
 
 
 @njit(cache=True)
 def rk_rhs(p, contact, sgn, s, fe_level, y, dy):
-    """Right-hand side in (x_r, v_r, V_c, X_c, W_drive, D_damp, D_contact, D_friction).
+    """Right-hand side in (x_r, v_r, V_c, X_c, W_drive, D_damp, D_contact, D_friction, d).
+
+    d = X_c - X_p is the extension of the substrate's presliding spring (substrate_compliance);
+    sgn = 0: contact patch stuck (compliance only).
 
     D_friction includes the viscous drag c_v V_c^2 (the resisting force of :func:`kinetic_level`)."""
     K, C, F0 = contact_terms(p, contact)
@@ -458,8 +466,14 @@ def rk_rhs(p, contact, sgn, s, fe_level, y, dy):
     Fi = K * y[0] + C * y[1] + F0
     # slip speed along the slip direction: > 0 during the slip; written without |.| so that the
     # right-hand side continues smoothly past the slip's end inside the step that locates it
+    if p[I_KS] > 0.0:
+        rk_rhs_patch(p, sgn, Fi, fe, y, dy)
+        dy[5] = p[I_C] * y[1] * y[1]
+        dy[6] = (C - p[I_C]) * y[1] * y[1]
+        return
     Vs = sgn * y[2]
     L = friction_level(p, Vs if Vs > 0.0 else 0.0, y[0])
+    dy[8] = 0.0
     ac = (-sgn * L - p[I_CV] * y[2] + Fi) / p[I_MC]
     am = (fe - Fi) / p[I_MM]
     dy[0] = y[1]
@@ -473,6 +487,78 @@ def rk_rhs(p, contact, sgn, s, fe_level, y, dy):
 
 
 @njit(cache=True)
+def rk_rhs_patch(p, sgn, Fi, fe, y, dy):
+    """Shell on a compliant wall (substrate_compliance, physics.md section 3): spring k_s and damper
+    c_s between the shell and a massless contact patch carrying the set-valued friction.
+
+    Patch stuck (sgn = 0): force on the shell -(k_s d + c_s V_c), d' = V_c. Patch sliding in
+    direction sgn: the massless patch balances k_s d + c_s (V_c - V_p) = sgn L, so the shell feels
+    -sgn L and d' = (sgn L - k_s d) / c_s; with c_s = 0 (the limit chosen for c_s -> 0) d stays at
+    sgn L / k_s and V_p = V_c. Dissipation: friction L |V_p|, damper c_s (V_c - V_p)^2, drag.
+    """
+    ks = p[I_KS]
+    cs = p[I_CS]
+    cv = p[I_CV]
+    Vc = y[2]
+    if sgn == 0.0:
+        Fs = ks * y[8] + cs * Vc
+        dd = Vc
+        diss = cs * Vc * Vc
+    else:
+        if cs > 0.0:
+            L = friction_level(p, 0.0, y[0])  # Coulomb (a speed law with c_s > 0 is refused on packing)
+            dd = (sgn * L - ks * y[8]) / cs
+        else:
+            Vs = sgn * Vc
+            L = friction_level(p, Vs if Vs > 0.0 else 0.0, y[0])
+            dd = 0.0
+        Fs = sgn * L
+        diss = L * sgn * (Vc - dd) + cs * dd * dd
+    ac = (Fi - Fs - cv * Vc) / p[I_MC]
+    am = (fe - Fi) / p[I_MM]
+    dy[0] = y[1]
+    dy[1] = am - ac
+    dy[2] = ac
+    dy[3] = Vc
+    dy[4] = fe * (Vc + y[1])
+    dy[7] = diss + cv * Vc * Vc
+    dy[8] = dd
+
+
+@njit(cache=True)
+def patch_force(p, d, Vc):
+    """Force [N] of the presliding spring-damper on the stuck patch, k_s d + c_s V_c."""
+    return p[I_KS] * d + p[I_CS] * Vc
+
+
+@njit(cache=True)
+def decide_patch(p, contact, xr, vr, Vc, d, fe):
+    """Return the patch state (PATCH_STICK, FAST_POS, FAST_NEG; -1 ill-posed) by the set-valued
+    law applied to the patch force (substrate_compliance), as :func:`decide_shell` for the shell."""
+    Pb = p[I_PB]
+    if Pb == np.inf:
+        return PATCH_STICK
+    Pb *= tilt_factor(p, xr)
+    F = patch_force(p, d, Vc)
+    tol = 1e-12 * p[I_FS]
+    aF = abs(F)
+    if aF < Pb - tol:
+        return PATCH_STICK
+    sgn = 1.0 if F > 0.0 else -1.0
+    if aF <= Pb + tol:
+        K, C, F0 = contact_terms(p, contact)
+        Fi = K * xr + C * vr + F0
+        ac = (Fi - F - p[I_CV] * Vc) / p[I_MC]
+        Fdot = p[I_KS] * Vc + p[I_CS] * ac
+        dPb = p[I_PB] * p[I_KAP] / p[I_G1] * vr if Pb > 0.0 else 0.0
+        if sgn * Fdot - dPb <= 0.0:
+            return PATCH_STICK
+    if aF - friction_level(p, 0.0, xr) < -tol:
+        return -1
+    return FAST_POS if sgn > 0 else FAST_NEG
+
+
+@njit(cache=True)
 def dense_eval(rc, th, out):
     """Evaluate the DOPRI5 continuous extension at theta in [0, 1]."""
     t1 = 1.0 - th
@@ -482,9 +568,22 @@ def dense_eval(rc, th, out):
 
 @njit(cache=True)
 def rk_event_value(p, contact, sgn, j, y):
-    """Inside-positive event functions of a fast-slip segment (j: 0 contact a, 1 contact b, 2 V_min)."""
+    """Inside-positive event functions of an adaptive segment (j: 0 contact a, 1 contact b, 2 V_min or
+    slip end; with substrate compliance 2/3 the patch's breakaway + / -, or 2 the patch's stop)."""
     G1 = p[I_G1]
     G2 = p[I_G2]
+    if j >= 2 and p[I_KS] > 0.0:
+        if sgn == 0.0:  # patch stuck: |k_s d + c_s V_c| <= P_b (1 + kappa x_r / G_1)
+            Pb = p[I_PB] * (1.0 + p[I_KAP] * y[0] / G1)
+            F = patch_force(p, y[8], y[2])
+            return Pb - F if j == 2 else Pb + F
+        if j == 3:
+            return 1.0
+        if p[I_CS] > 0.0:  # patch speed V_p = V_c - d'
+            return sgn * (y[2] - (sgn * friction_level(p, 0.0, y[0]) - p[I_KS] * y[8]) / p[I_CS])
+        return sgn * y[2]
+    if j == 3:
+        return 1.0
     if j == 2:
         return sgn * y[2] - p[I_VFAST]
     if contact == 0:
@@ -593,7 +692,13 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     contact = contact_of(p, xr)
     s = 0.0
     fe0 = drive_force(p, 0.0, p[I_PD])
-    if Vc == 0.0:
+    compliant = p[I_KS] > 0.0
+    dsub = 0.0  # presliding spring extension X_c - X_p (substrate compliance), relaxed at the start
+    if compliant:
+        shell = decide_patch(p, contact, xr, vr, Vc, dsub, fe0)
+        if shell < 0:
+            return STATUS_ILLPOSED, 0.0, samples, 0, events, 0, periods, energy, final
+    elif Vc == 0.0:
         shell = decide_shell(p, contact, xr, vr, fe0)
         if shell < 0:
             return STATUS_ILLPOSED, 0.0, samples, 0, events, 0, periods, energy, final
@@ -624,7 +729,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
         periods[0, P_VR0] = vr
         periods[0, P_VM0] = Vc + vr
         periods[0, P_VC0] = Vc
-    E_at_record = stored_energy(p, xr, vr, Vc) if n_transient == 0 else 0.0
+    E_at_record = stored_energy(p, xr, vr, Vc) + 0.5 * p[I_KS] * dsub * dsub if n_transient == 0 else 0.0
     energy[E_START] = E_at_record
     rec_t0 = n_transient * T
     if n_transient == 0 and n_record > 0 and not harmonic and rec_events:
@@ -649,7 +754,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
         ev = EV_NONE
         tau_ev = tau_end
         K, Cd, F0 = contact_terms(p, contact)
-        seg_stick = shell == STICK
+        seg_stick = shell == STICK or shell == PATCH_STICK
         Xc_seg0 = Xc
 
         if shell <= SLIP_NEG:
@@ -876,6 +981,12 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             wmax = w0
             if harmonic:
                 wmax = max(wmax, TWO_PI * f)
+            if compliant:
+                if shell == PATCH_STICK:
+                    sg = 0.0
+                    wmax = max(wmax, math.sqrt((K + p[I_KS]) / Mc + K / Mm))
+                elif p[I_CS] > 0.0:
+                    wmax = max(wmax, p[I_KS] / p[I_CS])
             hmax = TWO_PI / wmax / 8.0
             y[0] = xr
             y[1] = vr
@@ -883,14 +994,15 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             y[3] = Xc
             for i in range(4, NY):
                 y[i] = 0.0
+            y[8] = dsub
             tau = 0.0
             hh = hmax * 0.1
             rk_rhs(p, contact, sg, s, fe_level, y, k1)
             atol_x = rtol * p[I_XS]
             atol_v = rtol * p[I_VS]
             nsteps = 0
-            g0 = np.zeros(3)
-            for j in range(3):
+            g0 = np.zeros(4)
+            for j in range(4):
                 g0[j] = rk_event_value(p, contact, sg, j, y)
             Fa = K * y[0] + Cd * y[1] + F0
             dFa = K * k1[0] + Cd * k1[1]
@@ -940,7 +1052,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                 # events
                 th_ev = 2.0
                 e_ev = -1
-                for j in range(3):
+                for j in range(4):
                     g1 = rk_event_value(p, contact, sg, j, y1)
                     lo = 0.0
                     hi = -1.0
@@ -1032,14 +1144,19 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                         row[S_VC] = yd[2]
                         row[S_XR] = yd[0]
                         row[S_CONTACT] = contact
-                        row[S_STICK] = 0.0
+                        row[S_STICK] = 1.0 if shell == PATCH_STICK else 0.0
                         row[S_FI] = K * yd[0] + Cd * yd[1] + F0
                         j_sample += 1
                 if e_ev >= 0:
                     tau += th_stop * hh
                     for i in range(NY):
                         y[i] = y1[i]
-                    if e_ev == 2:
+                    if compliant and e_ev >= 2:
+                        if sg == 0.0:
+                            ev = EV_BREAK_POS if e_ev == 2 else EV_BREAK_NEG
+                        else:
+                            ev = EV_SLIP_END
+                    elif e_ev == 2:
                         ev = EV_FAST_OFF
                     elif contact == 0:
                         ev = EV_FRONT_ON if e_ev == 0 else EV_BACK_ON
@@ -1065,6 +1182,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             vr = y[1]
             Vc = y[2]
             Xc = y[3]
+            dsub = y[8]
             if recording and do_energy:
                 energy[E_DRIVE] += y[4]
                 energy[E_DAMP] += y[5]
@@ -1108,7 +1226,14 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             kind = K_BACK_OFF
         new_shell = shell
         fe_now = drive_force(p, s, fe_level)
-        if ev == EV_FRONT_ON or ev == EV_BACK_ON or ev == EV_FRONT_OFF or ev == EV_BACK_OFF:
+        if compliant:
+            if ev == EV_BREAK_POS or ev == EV_BREAK_NEG:
+                new_shell = decide_patch(p, contact, xr, vr, Vc, dsub, fe_now)
+            elif ev == EV_SLIP_END:
+                # the patch stops with its force at the kinetic level (<= breakaway): it sticks; a force
+                # that keeps rising past the breakaway is a break event of the stuck patch
+                new_shell = PATCH_STICK
+        elif ev == EV_FRONT_ON or ev == EV_BACK_ON or ev == EV_FRONT_OFF or ev == EV_BACK_OFF:
             if shell == STICK:
                 new_shell = decide_shell(p, contact, xr, vr, fe_now)
         elif ev == EV_BREAK_POS or ev == EV_BREAK_NEG:
@@ -1128,7 +1253,23 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             status = STATUS_ILLPOSED
             status_t = t_glob
             break
-        if new_shell != shell:
+        if new_shell != shell and compliant:
+            if new_shell == PATCH_STICK:
+                kind2 = K_STICK
+                if recording:
+                    n_stick += 1
+            elif shell == PATCH_STICK:
+                kind2 = K_SLIP_FWD if new_shell == FAST_POS else K_SLIP_BWD
+                if p[I_CS] == 0.0:
+                    # c_s = 0: the massless patch jumps to the kinetic balance k_s d = sgn L at once;
+                    # the released spring energy is dissipated at the patch
+                    dnew = (1.0 if new_shell == FAST_POS else -1.0) * friction_level(p, 0.0, xr) / p[I_KS]
+                    if recording and do_energy:
+                        energy[E_FRIC] += 0.5 * p[I_KS] * (dsub * dsub - dnew * dnew)
+                    dsub = dnew
+            else:  # reversal without sticking
+                kind2 = K_SLIP_FWD if new_shell == FAST_POS else K_SLIP_BWD
+        elif new_shell != shell:
             if new_shell == STICK:
                 kind2 = K_STICK
                 Vc = 0.0
@@ -1182,7 +1323,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                 periods[q, P_VM0] = Vc + vr
                 periods[q, P_VC0] = Vc
                 if period == n_transient:
-                    energy[E_START] = stored_energy(p, xr, vr, Vc)
+                    energy[E_START] = stored_energy(p, xr, vr, Vc) + 0.5 * p[I_KS] * dsub * dsub
                 if not harmonic and rec_events:
                     if n_ev >= events.shape[0] and ev_cap < 0:
                         events = _grow(events, n_ev)
@@ -1190,7 +1331,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                         events[n_ev, 0] = period * T
                         events[n_ev, 1] = K_DRIVE_ON
                         n_ev += 1
-    energy[E_END] = stored_energy(p, xr, vr, Vc)
+    energy[E_END] = stored_energy(p, xr, vr, Vc) + 0.5 * p[I_KS] * dsub * dsub
     final[0] = xr
     final[1] = vr
     final[2] = Xc

@@ -34,6 +34,8 @@ MODEL_PARAM_NAMES = {
     "n": "speed_n",
     "drag_Ns_m": "drag_Ns_m",
     "kappa": "tilt_kappa",
+    "compliance_mm_N": "compliance_m_N",
+    "substrate_damping_Ns_m": "substrate_damping_Ns_m",
 }
 
 
@@ -50,7 +52,9 @@ class CapsuleModel:
     speed_a_N : a [N] of the kinetic level P_f + a |V_c / (1 mm/s)|^speed_n (``speed_dependent_friction``,
     the eqs 22-23 form with b = P_f); drag_Ns_m : c_v [N s/m] of the drag -c_v V_c on the sliding
     shell (``viscous_drag``); tilt_kappa : kappa [-] of the level P_f (1 + kappa x_r / G_1), held
-    at zero below (``tilt_friction``). ``secondary_constraint`` sets double_sided with k_b, c_b.
+    at zero below (``tilt_friction``); compliance_m_N : 1/k_s [m/N] and substrate_damping_Ns_m : c_s [N s/m]
+    of the presliding spring-damper between shell and contact patch (``substrate_compliance``; 0 =
+    rigid wall). ``secondary_constraint`` sets double_sided with k_b, c_b.
     """
 
     mass_magnet_kg: float = 1.8e-3
@@ -68,6 +72,8 @@ class CapsuleModel:
     speed_n: float = 0.25
     drag_Ns_m: float = 0.0
     tilt_kappa: float = 0.0
+    compliance_m_N: float = 0.0
+    substrate_damping_Ns_m: float = 0.0
 
     @property
     def back_active(self) -> bool:
@@ -81,7 +87,8 @@ class CapsuleModel:
             if not (math.isfinite(v) and v > 0):
                 raise InputError(f"{where}: {name} must be a positive number, got {v}")
         for name in ("damping_Ns_m", "constraint_N_m", "constraint_damping_Ns_m", "constraint_back_N_m",
-                     "constraint_back_damping_Ns_m", "gap_back_m", "speed_a_N", "drag_Ns_m"):
+                     "constraint_back_damping_Ns_m", "gap_back_m", "speed_a_N", "drag_Ns_m",
+                     "compliance_m_N", "substrate_damping_Ns_m"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise InputError(f"{where}: {name} must be a non-negative number, got {v}")
@@ -345,9 +352,16 @@ def pack_params(model: CapsuleModel, drive: Drive, friction: Friction) -> np.nda
         p[E.I_LB] = 1e-3 * friction.b_mN
     p[E.I_CV] = model.drag_Ns_m
     p[E.I_KAP] = model.tilt_kappa
+    compliant = model.compliance_m_N > 0
+    if compliant:
+        if speed_law and model.substrate_damping_Ns_m > 0:
+            raise InputError("substrate_compliance with c_s > 0 takes a Coulomb friction level: a speed law "
+                             "would be implicit in the patch speed (use substrate_damping_Ns_m = 0)")
+        p[E.I_KS] = 1.0 / model.compliance_m_N
+        p[E.I_CS] = model.substrate_damping_Ns_m
     # slips faster than I_VFAST go on the adaptive path: above V_min for a held speed law; every
     # slip when the resisting force varies within a slip (literal law, drag, tilt); never for Coulomb
-    rk_all = (speed_law and friction.literal) or model.drag_Ns_m > 0 or model.tilt_kappa != 0
+    rk_all = (speed_law and friction.literal) or model.drag_Ns_m > 0 or model.tilt_kappa != 0 or compliant
     p[E.I_VFAST] = 0.0 if rk_all else (vmin if speed_law else math.inf)
     mu = model.mass_magnet_kg * model.mass_capsule_kg / (model.mass_magnet_kg + model.mass_capsule_kg)
     xs = max(model.gap_m, drive.amplitude_N / model.spring_N_m, 1e-6)

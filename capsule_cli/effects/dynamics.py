@@ -21,6 +21,14 @@ Choices made here where physics.md leaves them open (tested in tests/test_dynami
 * ``tilt_friction``: start kappa = 0.2 (the level varies by +-20 % over the gap, seed 002 Fig 5 shows
   a quasi-periodic friction of that order); the level is clamped at zero; the static and kinetic
   levels are scaled alike, and the stick test uses the scaled breakaway at the current x_r.
+* ``substrate_compliance``: start 1/k_s = 0.2 mm/N (seed 002 reports ~6.8 um of normal deformation
+  under the capsule's ~34 mN weight, ~0.2 mm/N; the tangential compliance is taken of that order),
+  start c_s = 0. The limit c_s -> 0 is taken exactly: with c_s = 0 the sliding patch keeps
+  k_s d = sgn P_k and, when the breakaway exceeds the kinetic level, jumps there at breakaway with the
+  released spring energy dissipated (counted). c_s > 0 with a speed law is refused (the law would be
+  implicit in the patch speed). The drag acts on the shell velocity whenever it moves. Stick
+  (``stick_fraction``) means the patch is stuck; the shell still moves on the presliding spring.
+  Continuation (protocol up/down) restarts the presliding spring relaxed at each condition.
 * ``secondary_constraint``: on the one-sided base only (the double-sided base has it); start values
   seed 002 Table 2 (97.06 N/mm, 0.35 N s/m) and the assumed G_2 = 0.1 mm of physics.md section 1.
 """
@@ -107,6 +115,19 @@ for _kind in KINDS:
                     "friction; its dissipation is counted with the friction's. Off: c_v = 0. " + ADDITIVE,
         source="seed 001 (lubricants at the capsule-mucosa interface); physics.md section 3",
         params=(Param("drag_Ns_m", 0.1, (0.0, 10.0), off=0.0, description="drag coefficient c_v"),),
+        covariates=(), apply=_not_a_transform))
+
+    register_effect(Effect(
+        name="substrate_compliance", kind=_kind,
+        description="The wall deforms tangentially before the capsule slides: spring k_s and damper c_s between "
+                    "the shell and a massless contact patch that carries the set-valued friction (elastic "
+                    "presliding in series with Coulomb friction). c_s = 0 is the exact c_s -> 0 limit. "
+                    "Off: compliance 1/k_s = 0 (rigid wall). " + ADDITIVE,
+        source="seed 002 sections 4-5 (intestinal deformation, ~6.8 um under the capsule's weight); "
+               "physics.md section 3",
+        params=(Param("compliance_mm_N", 0.2, (0.0, 100.0), off=0.0, description="tangential compliance 1/k_s"),
+                Param("substrate_damping_Ns_m", 0.0, (0.0, 10.0), off=0.0,
+                      description="damping c_s of the presliding element")),
         covariates=(), apply=_not_a_transform))
 
     register_effect(Effect(
