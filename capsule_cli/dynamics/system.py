@@ -25,7 +25,8 @@ import pandas as pd
 from ..config import load_param_set
 from ..errors import InputError
 from . import engine as E
-from .model import BASE_PARAM_SETS, CapsuleModel, Drive, EngineOptions, Friction, friction_preset, pack_params
+from .model import (BASE_PARAM_SETS, MODEL_PARAM_NAMES, CapsuleModel, Drive, EngineOptions, Friction,
+                    friction_preset, pack_params)
 from .run import check_status
 from .sweep import period_number
 
@@ -75,6 +76,8 @@ class DynSystem:
     params: Mapping[str, float] = field(repr=False)
     model: CapsuleModel = field(repr=False)
     Pf_N: float = 0.0078
+    #: plugin drive transforms (role "drive"), in model-file order: (effect, its parameters in SI by base name)
+    drive_transforms: tuple = field(default=(), repr=False)
 
     def friction(self) -> Friction:
         """Return the base Coulomb friction (the speed-law effect is applied on packing)."""
@@ -140,18 +143,48 @@ def build_system(base: str, params: Mapping[str, float], effects: Sequence[str] 
     ``configs/params/prototype_*.yaml`` and the effects' start values. effects: registered
     dynamics effect names (:mod:`capsule_cli.effects.dynamics`, or plugins).
     """
+    from ..effects.registry import get_effect, si_factor
+
     where = f"{where}: " if where and not where.endswith(": ") else where
     effects = tuple(effects)
     full = resolve_params(base, params, effects, where)
     pf = float(full.pop("Pf_N"))
     if not pf > 0:
         raise InputError(f"{where}Pf_N must be > 0 N (inf: shell fixed), got {pf}")
+    transforms = []
+    for name in effects:
+        eff = get_effect("progression", name, where)
+        if eff.role == "drive":
+            transforms.append((eff, {prm.key: full[prm.name] * si_factor(prm.name) for prm in eff.params}))
+        elif eff.origin != "built-in":
+            raise InputError(f"{where}plugin effect '{name}' ({eff.origin}) of a dynamics kind must be a drive "
+                             "transform (register_effect(..., role='drive')); plugin forces are not supported yet")
     double = base == "double_sided" or "secondary_constraint" in effects
-    model = CapsuleModel.from_params(full, double_sided=double, where=where.rstrip(": ") or "params")
-    return DynSystem(base=base, effects=effects, params={**full, "Pf_N": pf}, model=model, Pf_N=pf)
+    engine_params = {k: v for k, v in full.items() if k in MODEL_PARAM_NAMES}
+    model = CapsuleModel.from_params(engine_params, double_sided=double, where=where.rstrip(": ") or "params")
+    return DynSystem(base=base, effects=effects, params={**full, "Pf_N": pf}, model=model, Pf_N=pf,
+                     drive_transforms=tuple(transforms))
 
 
-def _conditions(f_Hz, Pd_N, duty, waveform: str):
+def transform_drive(system: DynSystem, f_Hz: float, Pd_N: float, duty: float) -> tuple[float, float, float]:
+    """Apply the system's plugin drive transforms to one condition (f [Hz], P_d [N], duty [-]).
+
+    A transform that raises or returns anything but three finite numbers is bad input (one line).
+    """
+    for eff, p in system.drive_transforms:
+        try:
+            out = eff.apply(float(f_Hz), float(Pd_N), float(duty), dict(p))
+            f_Hz, Pd_N, duty = (float(v) for v in out)
+        except Exception as exc:  # noqa: BLE001  (a plugin failing at run time is the user's input, exit 2)
+            raise InputError(f"drive transform '{eff.name}' ({eff.origin}) failed at f = {f_Hz:g} Hz, "
+                             f"Pd = {Pd_N:g} N: {type(exc).__name__}: {exc}") from None
+        if not all(math.isfinite(v) for v in (f_Hz, Pd_N, duty)):
+            raise InputError(f"drive transform '{eff.name}' ({eff.origin}) returned a non-finite drive "
+                             f"(f = {f_Hz}, Pd = {Pd_N}, duty = {duty})")
+    return f_Hz, Pd_N, duty
+
+
+def _conditions(f_Hz, Pd_N, duty, waveform: str, system: DynSystem | None = None):
     f = np.atleast_1d(np.asarray(f_Hz, dtype=float))
     Pd = np.atleast_1d(np.asarray(Pd_N, dtype=float))
     if duty is None:
@@ -163,8 +196,12 @@ def _conditions(f_Hz, Pd_N, duty, waveform: str):
         f, Pd, D = np.broadcast_arrays(f, Pd, D)
     except ValueError:
         raise InputError(f"f_Hz, Pd_N and duty have incompatible lengths ({f.size}, {Pd.size}, {D.size})") from None
+    if system is not None and system.drive_transforms:
+        rows = [transform_drive(system, fr, a, d) for fr, a, d in zip(f, Pd, D)]
+    else:
+        rows = list(zip(f, Pd, D))
     drives = [Drive(amplitude_N=float(a), frequency_Hz=float(fr), waveform=waveform, duty=float(d)).validate()
-              for fr, a, d in zip(f, Pd, D)]
+              for fr, a, d in rows]
     return f, Pd, D, drives
 
 
@@ -211,7 +248,8 @@ def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmo
     (P_d, duty), from rest at the first frequency.
     """
     protocol = protocol.validate()
-    f, Pd, D, drives = _conditions(f_Hz, Pd_N, duty, waveform)
+    f_in, Pd, D, drives = _conditions(f_Hz, Pd_N, duty, waveform, system)
+    f = np.array([d.frequency_Hz for d in drives])  # the driven frequency (after plugin transforms)
     n = len(drives)
     if n == 0:
         return pd.DataFrame(columns=["velocity_mm_s", "impacts_per_period", "period_number", "response_class",
@@ -231,7 +269,7 @@ def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmo
         for i in range(n):
             groups.setdefault((float(Pd[i]), float(D[i])), []).append(i)
         for idx in groups.values():
-            idx = sorted(idx, key=lambda i: f[i], reverse=protocol.start == "down")
+            idx = sorted(idx, key=lambda i: f_in[i], reverse=protocol.start == "down")
             state = np.zeros(4)
             for i in idx:
                 st, st_t, _, _, _, _, per, _, fin = E.run_core(P[i], opts, state, ntr, nrec, 1.0, 0, 0)
@@ -248,7 +286,7 @@ def trajectory(system: DynSystem, f_Hz: float, Pd_N: float, time_s, duty=None, w
     t = np.asarray(time_s, dtype=float).ravel()
     if t.size and (not np.all(np.isfinite(t)) or t.min() < 0):
         raise InputError("trajectory times must be finite and >= 0 s")
-    _, _, _, drives = _conditions(f_Hz, Pd_N, duty, waveform)
+    _, _, _, drives = _conditions(f_Hz, Pd_N, duty, waveform, system)
     if len(drives) != 1:
         raise InputError("trajectory takes one condition (scalar f_Hz, Pd_N, duty)")
     d = drives[0]
