@@ -32,7 +32,7 @@ from .sweep import period_number
 DEFAULT_FREQS = (5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0)
 #: runs with dynamics effects: (effect names, parameters) on the one-sided base at the effects' start values
 EFFECT_RUNS = ((("speed_dependent_friction",), {}), (("secondary_constraint",), {}), (("viscous_drag",), {}),
-               (("tilt_friction",), {}),
+               (("tilt_friction",), {}), (("substrate_compliance",), {}),
                (("speed_dependent_friction", "viscous_drag", "tilt_friction", "secondary_constraint"), {}))
 
 
