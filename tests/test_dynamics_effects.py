@@ -306,3 +306,35 @@ def test_substrate_compliance_with_a_damped_patch_refuses_a_speed_law():
                      ["substrate_compliance", "speed_dependent_friction"])
     with pytest.raises(InputError, match="implicit"):
         s.params_row(Drive(0.15, 30.0))
+
+
+# ---------------------------------------------------------------------------
+# the commands with a model file that lists effects
+
+
+def test_simulate_sweep_magnify_take_a_model_file_with_effects(tmp_path):
+    from capsule_cli.cli import main
+    from capsule_cli.tables import read_table
+
+    mf = tmp_path / "m.yaml"
+    mf.write_text("kind: progression\nbase: one_sided\n"
+                  "effects: [viscous_drag, secondary_constraint]\n"
+                  "params:\n  Pf_N: {value: 0.0078, free: true, bounds: [0.0, 0.5]}\n  drag_Ns_m: 0.02\n"
+                  "  gap_back_mm: 0.5\n")
+    out = tmp_path / "sim"
+    assert main(["simulate", "--model", str(mf), "--out", str(out), "--f-Hz", "30", "--periods", "4",
+                 "--quiet"]) == 0
+    s = build_system("one_sided", {"drag_Ns_m": 0.02, "gap_back_mm": 0.5}, ["viscous_drag", "secondary_constraint"])
+    r = simulate(s.model, Drive(0.15, 30.0), s.friction(), periods=4)
+    per = read_table(out / "periods.parquet")
+    np.testing.assert_allclose(per["displacement_mm"], r.periods["displacement_mm"], rtol=0, atol=1e-15)
+    assert per["back_impacts"].sum() > 0
+    assert main(["sweep", "--model", str(mf), "--out", str(tmp_path / "sw"), "--param", "drag_Ns_m", "--start", "0",
+                 "--stop", "0.04", "--num", "2", "--f-Hz", "30", "--transient-periods", "5", "--periods", "3",
+                 "--quiet"]) == 0
+    assert len(read_table(tmp_path / "sw" / "points.parquet")) == 2
+    assert main(["magnify", "--model", str(mf), "--out", str(tmp_path / "mag.parquet"), "--Pd-num", "2", "--f-num",
+                 "2", "--transient-periods", "5", "--periods", "3", "--quiet"]) == 0
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("kind: progression\nbase: one_sided\neffects: []\nparams:\n  kappa: 0.2\n")
+    assert main(["simulate", "--model", str(bad), "--out", str(tmp_path / "b"), "--periods", "2", "--quiet"]) == 2
