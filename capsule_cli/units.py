@@ -49,6 +49,9 @@ UNITS: dict[str, tuple[float, str, str]] = {
     "N_mm": (1e3, "N/mm", "stiffness"),
     "kN_m": (1e3, "kN/m", "stiffness"),
     "Ns_m": (1.0, "N·s/m", "damping"),
+    # compliance (inverse stiffness)
+    "m_N": (1.0, "m/N", "compliance"),
+    "mm_N": (1e-3, "mm/N", "compliance"),
     # density
     "kg_m3": (1.0, "kg/m³", "density"),
     "g_cm3": (1e3, "g/cm³", "density"),
@@ -62,7 +65,7 @@ UNITS: dict[str, tuple[float, str, str]] = {
 }
 
 # Names that are dimensionless or labels and carry no suffix.
-DIMENSIONLESS = {"mu", "duty", "n", "nu", "factor", "exponent", "poisson"}
+DIMENSIONLESS = {"mu", "duty", "n", "nu", "factor", "exponent", "poisson", "kappa"}
 
 
 def split_unit(name: str) -> tuple[str, str | None]:

@@ -30,6 +30,36 @@ from .run import simulate
 from .sweep import period_number
 
 DEFAULT_FREQS = (5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0)
+#: runs with dynamics effects: (effect names, parameters) on the one-sided base at the effects' start values
+EFFECT_RUNS = ((("speed_dependent_friction",), {}), (("secondary_constraint",), {}), (("viscous_drag",), {}),
+               (("tilt_friction",), {}), (("substrate_compliance",), {}),
+               (("speed_dependent_friction", "viscous_drag", "tilt_friction", "secondary_constraint"), {}))
+
+
+def effect_bench(f_Hz: float = 30.0, amplitude_N: float = 0.15, periods: int = 500, accuracy_periods: int = 5,
+                 repeat: int = 3) -> list[dict]:
+    """Engine throughput and reference agreement of the runs with dynamics effects (EFFECT_RUNS).
+
+    For each: periods per second from rest (events recorded, energy off, best of ``repeat``) and the
+    max event-time error [s] against the tight solve_ivp reference over ``accuracy_periods``.
+    """
+    from .system import build_system
+
+    out = []
+    for names, prm in EFFECT_RUNS:
+        sys_ = build_system("one_sided", prm, names)
+        d = Drive(amplitude_N, f_Hz)
+        fr = sys_.friction()
+        te = _engine_time(sys_.model, d, fr, periods, repeat)
+        eng = simulate(sys_.model, d, fr, periods=accuracy_periods, options=EngineOptions(energy=False))
+        ref = reference_run(sys_.model, d, fr, accuracy_periods, method="DOP853", rtol=1e-12)
+        ee = [(t, k) for t, k in zip(eng.events["time_s"], eng.events["kind"]) if not k.startswith("drive")]
+        rr = [(t, k) for t, k in ref.events if not k.startswith("drive")]
+        same = len(ee) == len(rr) and all(a[1] == b[1] for a, b in zip(ee, rr))
+        err = max([abs(a[0] - b[0]) for a, b in zip(ee, rr)] or [0.0]) if same else math.inf
+        out.append({"effects": list(names), "f_Hz": f_Hz, "periods_per_s": periods / te,
+                    "events_compared": len(ee), "event_sequence_matches": same, "event_time_error_s": err})
+    return out
 
 
 def _engine_time(model, drive, fr, periods, repeat=5, events=False):
@@ -195,6 +225,7 @@ def run_bench(freqs=DEFAULT_FREQS, amplitude_N: float = 0.15, Pf_N: float = 0.00
         "engine_periods": engine_periods,
         "baseline_periods": baseline_periods,
         "per_frequency": per_f,
+        "effects": effect_bench(amplitude_N=amplitude_N, repeat=repeat),
         "machine": {"python": platform.python_version(), "processor": platform.processor() or platform.machine()},
     }
 

@@ -53,7 +53,11 @@ I_MM, I_MC, I_K, I_C, I_G1, I_K1, I_C1, I_G2, I_KB, I_CB, I_BACK = range(11)
 I_PD, I_F, I_WAVE, I_DUTY = 11, 12, 13, 14
 I_PB, I_L0, I_VMIN, I_LA, I_LN, I_LB, I_LAW = 15, 16, 17, 18, 19, 20, 21
 I_XS, I_VS, I_FS = 22, 23, 24
-N_PARAMS = 25
+# dynamics effects (physics.md section 3, "Dynamics effects"); 0 = off
+I_CV, I_KAP, I_VFAST = 25, 26, 27
+# substrate compliance: k_s = 1/compliance (0: rigid wall, off), c_s
+I_KS, I_CS = 28, 29
+N_PARAMS = 30
 
 # options vector
 O_NPER, O_ENERGY, O_RTOL, O_ZENO, O_MAXSTEPS = 0, 1, 2, 3, 4
@@ -61,6 +65,9 @@ N_OPTS = 5
 
 # shell states
 STICK, SLIP_POS, SLIP_NEG, FAST_POS, FAST_NEG = 0, 1, 2, 3, 4
+# substrate compliance: contact patch stuck (the shell moves on the presliding spring k_s, c_s);
+# patch sliding uses FAST_POS / FAST_NEG
+PATCH_STICK = 5
 
 # event codes (root events inside a mode)
 EV_NONE = -1
@@ -126,11 +133,33 @@ def contact_of(p, xr):
 
 
 @njit(cache=True)
-def kinetic_level(p, V):
-    """Return the kinetic friction level [N] at slip speed |V| [m/s] (eqs 21-23, regularised)."""
+def tilt_factor(p, xr):
+    """Return the tilt scaling max(0, 1 + kappa x_r / G_1) of the friction levels (effect
+    ``tilt_friction``, physics.md section 3; seed 002 Fig 5); exactly 1 when kappa = 0."""
+    if p[I_KAP] == 0.0:
+        return 1.0
+    fac = 1.0 + p[I_KAP] * xr / p[I_G1]
+    return fac if fac > 0.0 else 0.0
+
+
+@njit(cache=True)
+def friction_level(p, V, xr):
+    """Return the friction level [N] at slip speed V >= 0 [m/s] and relative displacement x_r [m]:
+    Coulomb, or the speed law of eqs 22-23 held below V_min, scaled by the tilt factor."""
     if p[I_LAW] < 0.5 or V < p[I_VMIN]:
-        return p[I_L0]
-    return p[I_LA] * V ** p[I_LN] + p[I_LB]
+        L = p[I_L0]
+    else:
+        L = p[I_LA] * V ** p[I_LN] + p[I_LB]
+    if p[I_KAP] != 0.0:
+        L *= tilt_factor(p, xr)
+    return L
+
+
+@njit(cache=True)
+def kinetic_level(p, V, xr):
+    """Return the resisting force [N] on a shell slipping at speed |V| [m/s] with relative
+    displacement x_r [m]: :func:`friction_level` plus viscous drag c_v |V| (``viscous_drag``)."""
+    return friction_level(p, V, xr) + p[I_CV] * V
 
 
 @njit(cache=True)
@@ -167,6 +196,9 @@ def decide_shell(p, contact, xr, vr, fe):
     Pb = p[I_PB]
     if Pb == np.inf:
         return STICK
+    tilt = p[I_KAP] != 0.0
+    if tilt:
+        Pb *= tilt_factor(p, xr)
     K, C, F0 = contact_terms(p, contact)
     F = K * xr + C * vr + F0
     tol = 1e-12 * p[I_FS]
@@ -177,14 +209,17 @@ def decide_shell(p, contact, xr, vr, fe):
     if aF <= Pb + tol:
         ar = (fe - F) / p[I_MM]
         Fdot = K * vr + C * ar
-        if F * Fdot <= 0.0:
+        if tilt:
+            # the threshold moves with x_r: stick when |F_i| - P_b(x_r) is not increasing
+            dPb = p[I_PB] * p[I_KAP] / p[I_G1] * vr if Pb > 0.0 else 0.0
+            if sgn * Fdot - dPb <= 0.0:
+                return STICK
+        elif F * Fdot <= 0.0:
             return STICK
-    L0 = p[I_L0]
-    if p[I_LAW] > 0.5 and p[I_VMIN] <= 0.0:
-        L0 = p[I_LB]
+    L0 = kinetic_level(p, 0.0, xr)  # level at 0+ (held value, or the literal law's b)
     if aF - L0 < -tol:
         return -1
-    fast = p[I_LAW] > 0.5 and p[I_VMIN] <= 0.0
+    fast = p[I_VFAST] <= 0.0
     if sgn > 0:
         return FAST_POS if fast else SLIP_POS
     return FAST_NEG if fast else SLIP_NEG
@@ -415,18 +450,31 @@ E1, E3, E4, E5, E6, E7 = (71.0 / 57600.0, -71.0 / 16695.0, 71.0 / 1920.0, -17253
                           22.0 / 525.0, -1.0 / 40.0)
 D1, D3, D4 = -12715105075.0 / 11282082432.0, 87487479700.0 / 32700410799.0, -10690763975.0 / 1880347072.0
 D5, D6, D7 = 701980252875.0 / 199316789632.0, -1453857185.0 / 822651844.0, 69997945.0 / 29380423.0
-NY = 8
+NY = 9
 
 
 @njit(cache=True)
 def rk_rhs(p, contact, sgn, s, fe_level, y, dy):
-    """Right-hand side in (x_r, v_r, V_c, X_c, W_drive, D_damp, D_contact, D_friction)."""
+    """Right-hand side in (x_r, v_r, V_c, X_c, W_drive, D_damp, D_contact, D_friction, d).
+
+    d = X_c - X_p is the extension of the substrate's presliding spring (substrate_compliance);
+    sgn = 0: contact patch stuck (compliance only).
+
+    D_friction includes the viscous drag c_v V_c^2 (the resisting force of :func:`kinetic_level`)."""
     K, C, F0 = contact_terms(p, contact)
     fe = drive_force(p, s, fe_level)
     Fi = K * y[0] + C * y[1] + F0
-    V = abs(y[2])
-    L = kinetic_level(p, V)
-    ac = (-sgn * L + Fi) / p[I_MC]
+    # slip speed along the slip direction: > 0 during the slip; written without |.| so that the
+    # right-hand side continues smoothly past the slip's end inside the step that locates it
+    if p[I_KS] > 0.0:
+        rk_rhs_patch(p, sgn, Fi, fe, y, dy)
+        dy[5] = p[I_C] * y[1] * y[1]
+        dy[6] = (C - p[I_C]) * y[1] * y[1]
+        return
+    Vs = sgn * y[2]
+    L = friction_level(p, Vs if Vs > 0.0 else 0.0, y[0])
+    dy[8] = 0.0
+    ac = (-sgn * L - p[I_CV] * y[2] + Fi) / p[I_MC]
     am = (fe - Fi) / p[I_MM]
     dy[0] = y[1]
     dy[1] = am - ac
@@ -435,7 +483,79 @@ def rk_rhs(p, contact, sgn, s, fe_level, y, dy):
     dy[4] = fe * (y[2] + y[1])
     dy[5] = p[I_C] * y[1] * y[1]
     dy[6] = (C - p[I_C]) * y[1] * y[1]
-    dy[7] = L * V
+    dy[7] = L * Vs + p[I_CV] * y[2] * y[2]
+
+
+@njit(cache=True)
+def rk_rhs_patch(p, sgn, Fi, fe, y, dy):
+    """Shell on a compliant wall (substrate_compliance, physics.md section 3): spring k_s and damper
+    c_s between the shell and a massless contact patch carrying the set-valued friction.
+
+    Patch stuck (sgn = 0): force on the shell -(k_s d + c_s V_c), d' = V_c. Patch sliding in
+    direction sgn: the massless patch balances k_s d + c_s (V_c - V_p) = sgn L, so the shell feels
+    -sgn L and d' = (sgn L - k_s d) / c_s; with c_s = 0 (the limit chosen for c_s -> 0) d stays at
+    sgn L / k_s and V_p = V_c. Dissipation: friction L |V_p|, damper c_s (V_c - V_p)^2, drag.
+    """
+    ks = p[I_KS]
+    cs = p[I_CS]
+    cv = p[I_CV]
+    Vc = y[2]
+    if sgn == 0.0:
+        Fs = ks * y[8] + cs * Vc
+        dd = Vc
+        diss = cs * Vc * Vc
+    else:
+        if cs > 0.0:
+            L = friction_level(p, 0.0, y[0])  # Coulomb (a speed law with c_s > 0 is refused on packing)
+            dd = (sgn * L - ks * y[8]) / cs
+        else:
+            Vs = sgn * Vc
+            L = friction_level(p, Vs if Vs > 0.0 else 0.0, y[0])
+            dd = 0.0
+        Fs = sgn * L
+        diss = L * sgn * (Vc - dd) + cs * dd * dd
+    ac = (Fi - Fs - cv * Vc) / p[I_MC]
+    am = (fe - Fi) / p[I_MM]
+    dy[0] = y[1]
+    dy[1] = am - ac
+    dy[2] = ac
+    dy[3] = Vc
+    dy[4] = fe * (Vc + y[1])
+    dy[7] = diss + cv * Vc * Vc
+    dy[8] = dd
+
+
+@njit(cache=True)
+def patch_force(p, d, Vc):
+    """Force [N] of the presliding spring-damper on the stuck patch, k_s d + c_s V_c."""
+    return p[I_KS] * d + p[I_CS] * Vc
+
+
+@njit(cache=True)
+def decide_patch(p, contact, xr, vr, Vc, d, fe):
+    """Return the patch state (PATCH_STICK, FAST_POS, FAST_NEG; -1 ill-posed) by the set-valued
+    law applied to the patch force (substrate_compliance), as :func:`decide_shell` for the shell."""
+    Pb = p[I_PB]
+    if Pb == np.inf:
+        return PATCH_STICK
+    Pb *= tilt_factor(p, xr)
+    F = patch_force(p, d, Vc)
+    tol = 1e-12 * p[I_FS]
+    aF = abs(F)
+    if aF < Pb - tol:
+        return PATCH_STICK
+    sgn = 1.0 if F > 0.0 else -1.0
+    if aF <= Pb + tol:
+        K, C, F0 = contact_terms(p, contact)
+        Fi = K * xr + C * vr + F0
+        ac = (Fi - F - p[I_CV] * Vc) / p[I_MC]
+        Fdot = p[I_KS] * Vc + p[I_CS] * ac
+        dPb = p[I_PB] * p[I_KAP] / p[I_G1] * vr if Pb > 0.0 else 0.0
+        if sgn * Fdot - dPb <= 0.0:
+            return PATCH_STICK
+    if aF - friction_level(p, 0.0, xr) < -tol:
+        return -1
+    return FAST_POS if sgn > 0 else FAST_NEG
 
 
 @njit(cache=True)
@@ -448,11 +568,24 @@ def dense_eval(rc, th, out):
 
 @njit(cache=True)
 def rk_event_value(p, contact, sgn, j, y):
-    """Inside-positive event functions of a fast-slip segment (j: 0 contact a, 1 contact b, 2 V_min)."""
+    """Inside-positive event functions of an adaptive segment (j: 0 contact a, 1 contact b, 2 V_min or
+    slip end; with substrate compliance 2/3 the patch's breakaway + / -, or 2 the patch's stop)."""
     G1 = p[I_G1]
     G2 = p[I_G2]
+    if j >= 2 and p[I_KS] > 0.0:
+        if sgn == 0.0:  # patch stuck: |k_s d + c_s V_c| <= P_b (1 + kappa x_r / G_1)
+            Pb = p[I_PB] * (1.0 + p[I_KAP] * y[0] / G1)
+            F = patch_force(p, y[8], y[2])
+            return Pb - F if j == 2 else Pb + F
+        if j == 3:
+            return 1.0
+        if p[I_CS] > 0.0:  # patch speed V_p = V_c - d'
+            return sgn * (y[2] - (sgn * friction_level(p, 0.0, y[0]) - p[I_KS] * y[8]) / p[I_CS])
+        return sgn * y[2]
+    if j == 3:
+        return 1.0
     if j == 2:
-        return sgn * y[2] - p[I_VMIN]
+        return sgn * y[2] - p[I_VFAST]
     if contact == 0:
         if j == 0:
             return G1 - y[0]
@@ -479,6 +612,20 @@ def _grow(ev, n):
 def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_cap):
     """Run n_transient + n_record excitation periods from state0; return the records.
 
+    Trajectory samples at t = j sample_dt (j < n_samples) after the transient; see
+    :func:`run_core_at` for the records.
+    """
+    times = np.arange(n_samples) * sample_dt
+    return run_core_at(p, opts, state0, n_transient, n_record, times, ev_cap)
+
+
+@njit(cache=True)
+def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
+    """Run n_transient + n_record excitation periods from state0; return the records.
+
+    sample_times : ascending times [s] after the transient at which the trajectory is sampled
+    exactly (closed form, or the adaptive segment's dense output).
+
     state0 = [x_r, v_r, X_c, V_c] [m, m/s] at phase 0 (time 0).
     Returns (status, status_time_s, samples, n_samples_written, events, n_events,
     periods, energy, final_state) where final_state = [x_r, v_r, X_c, V_c, contact, shell].
@@ -501,6 +648,7 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
     tol_v = 1e-13 * p[I_VS]
     tol_F = 1e-13 * p[I_FS]
 
+    n_samples = sample_times.shape[0]
     samples = np.zeros((n_samples, N_SAMPLE_COLS))
     rec_events = ev_cap != 0
     events = np.zeros((ev_cap if ev_cap > 0 else 64, 2))
@@ -544,12 +692,18 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
     contact = contact_of(p, xr)
     s = 0.0
     fe0 = drive_force(p, 0.0, p[I_PD])
-    if Vc == 0.0:
+    compliant = p[I_KS] > 0.0
+    dsub = 0.0  # presliding spring extension X_c - X_p (substrate compliance), relaxed at the start
+    if compliant:
+        shell = decide_patch(p, contact, xr, vr, Vc, dsub, fe0)
+        if shell < 0:
+            return STATUS_ILLPOSED, 0.0, samples, 0, events, 0, periods, energy, final
+    elif Vc == 0.0:
         shell = decide_shell(p, contact, xr, vr, fe0)
         if shell < 0:
             return STATUS_ILLPOSED, 0.0, samples, 0, events, 0, periods, energy, final
     else:
-        fast = p[I_LAW] > 0.5 and abs(Vc) >= p[I_VMIN]
+        fast = abs(Vc) >= p[I_VFAST]
         if Vc > 0:
             shell = FAST_POS if fast else SLIP_POS
         else:
@@ -575,7 +729,7 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
         periods[0, P_VR0] = vr
         periods[0, P_VM0] = Vc + vr
         periods[0, P_VC0] = Vc
-    E_at_record = stored_energy(p, xr, vr, Vc) if n_transient == 0 else 0.0
+    E_at_record = stored_energy(p, xr, vr, Vc) + 0.5 * p[I_KS] * dsub * dsub if n_transient == 0 else 0.0
     energy[E_START] = E_at_record
     rec_t0 = n_transient * T
     if n_transient == 0 and n_record > 0 and not harmonic and rec_events:
@@ -600,7 +754,7 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
         ev = EV_NONE
         tau_ev = tau_end
         K, Cd, F0 = contact_terms(p, contact)
-        seg_stick = shell == STICK
+        seg_stick = shell == STICK or shell == PATCH_STICK
         Xc_seg0 = Xc
 
         if shell <= SLIP_NEG:
@@ -645,6 +799,12 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
                     for j in range(NB):
                         evc[ne, j] = -cF[j]
                         evc[ne + 1, j] = cF[j]
+                    if p[I_KAP] != 0.0:
+                        # tilt: breakaway P_b (1 + kappa x_r / G_1), linear in the state
+                        kq = p[I_PB] * p[I_KAP] / G1
+                        for j in range(NB):
+                            evc[ne, j] += kq * coef[0, j]
+                            evc[ne + 1, j] += kq * coef[0, j]
                     evc[ne, 4] += p[I_PB]
                     evc[ne + 1, 4] += p[I_PB]
                     evcode[ne] = EV_BREAK_POS
@@ -659,10 +819,10 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
                 evcode[ne] = EV_SLIP_END
                 evtol[ne] = tol_v
                 ne += 1
-                if p[I_LAW] > 0.5 and p[I_VMIN] < np.inf:
+                if p[I_VFAST] < np.inf:
                     for j in range(NB):
                         evc[ne, j] = -sg * coef[3, j]
-                    evc[ne, 4] += p[I_VMIN]
+                    evc[ne, 4] += p[I_VFAST]
                     evcode[ne] = EV_FAST_ON
                     evtol[ne] = tol_v
                     ne += 1
@@ -706,11 +866,25 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
                                 if dot7(evc[e], Bs) > evtol[e]:
                                     r = refine_root(evc[e], devc[e], tk, tb, s, sig, disc, w, Om, Bs)
                                     break
-                    elif dga[e] < 0.0 and dgb > 0.0:
+                    elif dgb > 0.0 and (dga[e] < 0.0 or (ta == 0.0 and abs(dga[e]) <= 1e-9 * dgb)):
+                        # an interior minimum of g (grazing). A mode that starts with g' ~ 0 (a slip
+                        # from a friction threshold: V_c' = 0) has g' of either sign at rounding
+                        # level at ta: probe geometrically for the first point where g' < 0.
                         for j in range(NB):
                             negc[j] = -devc[e, j]
                             negdc[j] = -ddevc[e, j]
-                        m = refine_root(negc, negdc, ta, tb, s, sig, disc, w, Om, Bs)
+                        t0m = ta
+                        if dga[e] >= 0.0:
+                            t0m = -1.0
+                            for kk in range(48):
+                                tk = ta + (tb - ta) * 2.0 ** (kk - 47)
+                                basis(tk, s, sig, disc, w, Om, Bs)
+                                if dot7(devc[e], Bs) < 0.0:
+                                    t0m = tk
+                                    break
+                        m = tb
+                        if t0m >= 0.0:
+                            m = refine_root(negc, negdc, t0m, tb, s, sig, disc, w, Om, Bs)
                         basis(m, s, sig, disc, w, Om, Bs)
                         gm = dot7(evc[e], Bs)
                         if gm < -evtol[e]:
@@ -770,7 +944,7 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
             # samples
             if recording and n_samples > 0:
                 while j_sample < n_samples:
-                    ts = j_sample * sample_dt - (period - n_transient) * T
+                    ts = sample_times[j_sample] - (period - n_transient) * T
                     if ts >= s + tau_ev:
                         break
                     tt = ts - s
@@ -782,7 +956,7 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
                     sXc = dot7(coef[2], Bs)
                     sVc = dot7(coef[3], Bs)
                     row = samples[j_sample]
-                    row[S_T] = rec_t0 + j_sample * sample_dt
+                    row[S_T] = rec_t0 + sample_times[j_sample]
                     row[S_XM] = sXc + sx
                     row[S_XC] = sXc
                     row[S_VM] = sVc + sv
@@ -807,6 +981,12 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
             wmax = w0
             if harmonic:
                 wmax = max(wmax, TWO_PI * f)
+            if compliant:
+                if shell == PATCH_STICK:
+                    sg = 0.0
+                    wmax = max(wmax, math.sqrt((K + p[I_KS]) / Mc + K / Mm))
+                elif p[I_CS] > 0.0:
+                    wmax = max(wmax, p[I_KS] / p[I_CS])
             hmax = TWO_PI / wmax / 8.0
             y[0] = xr
             y[1] = vr
@@ -814,14 +994,15 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
             y[3] = Xc
             for i in range(4, NY):
                 y[i] = 0.0
+            y[8] = dsub
             tau = 0.0
             hh = hmax * 0.1
             rk_rhs(p, contact, sg, s, fe_level, y, k1)
             atol_x = rtol * p[I_XS]
             atol_v = rtol * p[I_VS]
             nsteps = 0
-            g0 = np.zeros(3)
-            for j in range(3):
+            g0 = np.zeros(4)
+            for j in range(4):
                 g0[j] = rk_event_value(p, contact, sg, j, y)
             Fa = K * y[0] + Cd * y[1] + F0
             dFa = K * k1[0] + Cd * k1[1]
@@ -871,7 +1052,7 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
                 # events
                 th_ev = 2.0
                 e_ev = -1
-                for j in range(3):
+                for j in range(4):
                     g1 = rk_event_value(p, contact, sg, j, y1)
                     lo = 0.0
                     hi = -1.0
@@ -948,7 +1129,7 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
                 # samples
                 if recording and n_samples > 0:
                     while j_sample < n_samples:
-                        ts = j_sample * sample_dt - (period - n_transient) * T
+                        ts = sample_times[j_sample] - (period - n_transient) * T
                         if ts >= sa + th_stop * hh:
                             break
                         th = (ts - sa) / hh
@@ -956,21 +1137,26 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
                             th = 0.0
                         dense_eval(rc, th, yd)
                         row = samples[j_sample]
-                        row[S_T] = rec_t0 + j_sample * sample_dt
+                        row[S_T] = rec_t0 + sample_times[j_sample]
                         row[S_XM] = yd[3] + yd[0]
                         row[S_XC] = yd[3]
                         row[S_VM] = yd[2] + yd[1]
                         row[S_VC] = yd[2]
                         row[S_XR] = yd[0]
                         row[S_CONTACT] = contact
-                        row[S_STICK] = 0.0
+                        row[S_STICK] = 1.0 if shell == PATCH_STICK else 0.0
                         row[S_FI] = K * yd[0] + Cd * yd[1] + F0
                         j_sample += 1
                 if e_ev >= 0:
                     tau += th_stop * hh
                     for i in range(NY):
                         y[i] = y1[i]
-                    if e_ev == 2:
+                    if compliant and e_ev >= 2:
+                        if sg == 0.0:
+                            ev = EV_BREAK_POS if e_ev == 2 else EV_BREAK_NEG
+                        else:
+                            ev = EV_SLIP_END
+                    elif e_ev == 2:
                         ev = EV_FAST_OFF
                     elif contact == 0:
                         ev = EV_FRONT_ON if e_ev == 0 else EV_BACK_ON
@@ -996,6 +1182,7 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
             vr = y[1]
             Vc = y[2]
             Xc = y[3]
+            dsub = y[8]
             if recording and do_energy:
                 energy[E_DRIVE] += y[4]
                 energy[E_DAMP] += y[5]
@@ -1039,7 +1226,14 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
             kind = K_BACK_OFF
         new_shell = shell
         fe_now = drive_force(p, s, fe_level)
-        if ev == EV_FRONT_ON or ev == EV_BACK_ON or ev == EV_FRONT_OFF or ev == EV_BACK_OFF:
+        if compliant:
+            if ev == EV_BREAK_POS or ev == EV_BREAK_NEG:
+                new_shell = decide_patch(p, contact, xr, vr, Vc, dsub, fe_now)
+            elif ev == EV_SLIP_END:
+                # the patch stops with its force at the kinetic level (<= breakaway): it sticks; a force
+                # that keeps rising past the breakaway is a break event of the stuck patch
+                new_shell = PATCH_STICK
+        elif ev == EV_FRONT_ON or ev == EV_BACK_ON or ev == EV_FRONT_OFF or ev == EV_BACK_OFF:
             if shell == STICK:
                 new_shell = decide_shell(p, contact, xr, vr, fe_now)
         elif ev == EV_BREAK_POS or ev == EV_BREAK_NEG:
@@ -1050,7 +1244,7 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
         elif ev == EV_FAST_ON:
             new_shell = FAST_POS if shell == SLIP_POS else FAST_NEG
         elif ev == EV_FAST_OFF:
-            if p[I_VMIN] > 0.0:
+            if p[I_VFAST] > 0.0:
                 new_shell = SLIP_POS if shell == FAST_POS else SLIP_NEG
             else:
                 Vc = 0.0
@@ -1059,7 +1253,23 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
             status = STATUS_ILLPOSED
             status_t = t_glob
             break
-        if new_shell != shell:
+        if new_shell != shell and compliant:
+            if new_shell == PATCH_STICK:
+                kind2 = K_STICK
+                if recording:
+                    n_stick += 1
+            elif shell == PATCH_STICK:
+                kind2 = K_SLIP_FWD if new_shell == FAST_POS else K_SLIP_BWD
+                if p[I_CS] == 0.0:
+                    # c_s = 0: the massless patch jumps to the kinetic balance k_s d = sgn L at once;
+                    # the released spring energy is dissipated at the patch
+                    dnew = (1.0 if new_shell == FAST_POS else -1.0) * friction_level(p, 0.0, xr) / p[I_KS]
+                    if recording and do_energy:
+                        energy[E_FRIC] += 0.5 * p[I_KS] * (dsub * dsub - dnew * dnew)
+                    dsub = dnew
+            else:  # reversal without sticking
+                kind2 = K_SLIP_FWD if new_shell == FAST_POS else K_SLIP_BWD
+        elif new_shell != shell:
             if new_shell == STICK:
                 kind2 = K_STICK
                 Vc = 0.0
@@ -1113,7 +1323,7 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
                 periods[q, P_VM0] = Vc + vr
                 periods[q, P_VC0] = Vc
                 if period == n_transient:
-                    energy[E_START] = stored_energy(p, xr, vr, Vc)
+                    energy[E_START] = stored_energy(p, xr, vr, Vc) + 0.5 * p[I_KS] * dsub * dsub
                 if not harmonic and rec_events:
                     if n_ev >= events.shape[0] and ev_cap < 0:
                         events = _grow(events, n_ev)
@@ -1121,7 +1331,7 @@ def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_ca
                         events[n_ev, 0] = period * T
                         events[n_ev, 1] = K_DRIVE_ON
                         n_ev += 1
-    energy[E_END] = stored_energy(p, xr, vr, Vc)
+    energy[E_END] = stored_energy(p, xr, vr, Vc) + 0.5 * p[I_KS] * dsub * dsub
     final[0] = xr
     final[1] = vr
     final[2] = Xc

@@ -29,6 +29,13 @@ MODEL_PARAM_NAMES = {
     "gap_back_mm": "gap_back_m",
     "constraint_back_N_m": "constraint_back_N_m",
     "constraint_back_damping_Ns_m": "constraint_back_damping_Ns_m",
+    # parameters of the dynamics effects (capsule_cli/effects/dynamics.py; physics.md section 3)
+    "a_mN": "speed_a_N",
+    "n": "speed_n",
+    "drag_Ns_m": "drag_Ns_m",
+    "kappa": "tilt_kappa",
+    "compliance_mm_N": "compliance_m_N",
+    "substrate_damping_Ns_m": "substrate_damping_Ns_m",
 }
 
 
@@ -40,6 +47,14 @@ class CapsuleModel:
     damping_Ns_m : c [N s/m]; gap_m : G_1 [m]; constraint_N_m : k_1 [N/m];
     constraint_damping_Ns_m : front contact damping [N s/m] (0 for seed 000's one-sided model);
     double_sided : add the back constraint k_b at x_r <= -G_2 (seed 001 App. A).
+
+    Dynamics effects (physics.md section 3, "Dynamics effects"; each 0 = off = the base exactly):
+    speed_a_N : a [N] of the kinetic level P_f + a |V_c / (1 mm/s)|^speed_n (``speed_dependent_friction``,
+    the eqs 22-23 form with b = P_f); drag_Ns_m : c_v [N s/m] of the drag -c_v V_c on the sliding
+    shell (``viscous_drag``); tilt_kappa : kappa [-] of the level P_f (1 + kappa x_r / G_1), held
+    at zero below (``tilt_friction``); compliance_m_N : 1/k_s [m/N] and substrate_damping_Ns_m : c_s [N s/m]
+    of the presliding spring-damper between shell and contact patch (``substrate_compliance``; 0 =
+    rigid wall). ``secondary_constraint`` sets double_sided with k_b, c_b.
     """
 
     mass_magnet_kg: float = 1.8e-3
@@ -53,6 +68,18 @@ class CapsuleModel:
     gap_back_m: float = 0.1e-3
     constraint_back_N_m: float = 0.0
     constraint_back_damping_Ns_m: float = 0.0
+    speed_a_N: float = 0.0
+    speed_n: float = 0.25
+    drag_Ns_m: float = 0.0
+    tilt_kappa: float = 0.0
+    compliance_m_N: float = 0.0
+    substrate_damping_Ns_m: float = 0.0
+
+    @property
+    def back_active(self) -> bool:
+        """True when the backward constraint exerts a force (double-sided with k_b or c_b > 0):
+        with k_b = c_b = 0 it is absent, so the model is the one-sided one exactly."""
+        return self.double_sided and (self.constraint_back_N_m > 0 or self.constraint_back_damping_Ns_m > 0)
 
     def validate(self, where: str = "model") -> "CapsuleModel":
         for name in ("mass_magnet_kg", "mass_capsule_kg", "spring_N_m", "gap_m"):
@@ -60,10 +87,15 @@ class CapsuleModel:
             if not (math.isfinite(v) and v > 0):
                 raise InputError(f"{where}: {name} must be a positive number, got {v}")
         for name in ("damping_Ns_m", "constraint_N_m", "constraint_damping_Ns_m", "constraint_back_N_m",
-                     "constraint_back_damping_Ns_m", "gap_back_m"):
+                     "constraint_back_damping_Ns_m", "gap_back_m", "speed_a_N", "drag_Ns_m",
+                     "compliance_m_N", "substrate_damping_Ns_m"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise InputError(f"{where}: {name} must be a non-negative number, got {v}")
+        if not (math.isfinite(self.speed_n) and self.speed_n > 0):
+            raise InputError(f"{where}: the speed-law exponent n must be a positive number, got {self.speed_n}")
+        if not math.isfinite(self.tilt_kappa):
+            raise InputError(f"{where}: kappa must be a finite number, got {self.tilt_kappa}")
         if self.double_sided and not self.gap_back_m > 0:
             raise InputError(f"{where}: gap_back_m must be > 0 for the double-sided model")
         return self
@@ -119,14 +151,12 @@ def load_model(name: str = "prototype_one_sided") -> tuple[CapsuleModel, float |
         if mf.base not in BASE_PARAM_SETS:
             raise InputError(f"{name}: base '{mf.base}' is not a dynamics base model "
                              f"({', '.join(BASE_PARAM_SETS)})")
-        if mf.effects:
-            raise InputError(f"{name}: effects {mf.effects} on a dynamics model are not supported by this command; "
-                             "simulate and sweep run the base model")
-        params = dict(load_param_set(BASE_PARAM_SETS[mf.base]))
-        for key, val in mf.params.items():
-            params[key] = float(val if isinstance(val, (int, float)) else val.value)
+        from .system import resolve_params
+        given = {key: float(val if isinstance(val, (int, float)) else val.value) for key, val in mf.params.items()}
+        # the base's parameter set, the effects' start values, the file's values (effect terms as data)
+        params = resolve_params(mf.base, given, tuple(mf.effects), where=f"{name}: ")
         where = str(name)
-        double_sided = mf.base == "double_sided"
+        double_sided = mf.base == "double_sided" or "secondary_constraint" in mf.effects
     else:
         params = load_param_set(name)
         where = str(name)
@@ -265,8 +295,34 @@ def friction_preset(kind: str, level_N: float | None = None, literal: bool = Fal
                     literal=literal, speed_unit=speed_unit).validate()
 
 
+def effective_friction(model: CapsuleModel, friction: Friction) -> Friction:
+    """Return the shell friction with the model's ``speed_dependent_friction`` term applied.
+
+    physics.md section 3 ("Dynamics effects"): the kinetic level becomes P_f + a |V_c|^n (V in
+    mm/s, the eqs 22-23 form with b = P_f), well posed as eqs 22-23 are: breakaway = max(static,
+    law at 0+) and the law held below V_min (``configs/params/friction_laws_dynamics.yaml``,
+    0.2 mm/s). With a = 0 (off), or for a shell held fixed, ``friction`` is returned unchanged.
+    Only a Coulomb base friction takes the term (eqs 22-23 already are speed laws).
+    """
+    if model.speed_a_N == 0.0 or friction.kind == "fixed":
+        return friction
+    if friction.kind != "coulomb":
+        raise InputError(f"speed_dependent_friction adds a |V|^n to a Coulomb level; the friction "
+                         f"'{friction.kind}' already is a speed law")
+    vmin = load_param_set("friction_laws_dynamics")["v_min_mm_s"]
+    static = friction.level_N if friction.static_N is None else friction.static_N
+    return Friction(kind="law", static_N=static, a_mN=model.speed_a_N * 1e3, n=model.speed_n,
+                    b_mN=friction.level_N * 1e3, v_min_mm_s=float(vmin), literal=friction.literal).validate()
+
+
 def pack_params(model: CapsuleModel, drive: Drive, friction: Friction) -> np.ndarray:
-    """Return the engine's parameter vector (SI) for a model, drive and friction."""
+    """Return the engine's parameter vector (SI) for a model, drive and friction.
+
+    The one place where the row layout of ``engine.I_*`` is filled; the model's dynamics effects
+    (speed law, drag, tilt, backward constraint) enter here, each off at 0.
+    """
+    friction = effective_friction(model, friction)
+    back = model.back_active
     p = np.zeros(E.N_PARAMS)
     p[E.I_MM] = model.mass_magnet_kg
     p[E.I_MC] = model.mass_capsule_kg
@@ -275,10 +331,10 @@ def pack_params(model: CapsuleModel, drive: Drive, friction: Friction) -> np.nda
     p[E.I_G1] = model.gap_m
     p[E.I_K1] = model.constraint_N_m
     p[E.I_C1] = model.constraint_damping_Ns_m
-    p[E.I_G2] = model.gap_back_m if model.double_sided else 1e300
-    p[E.I_KB] = model.constraint_back_N_m if model.double_sided else 0.0
-    p[E.I_CB] = model.constraint_back_damping_Ns_m if model.double_sided else 0.0
-    p[E.I_BACK] = 1.0 if model.double_sided else 0.0
+    p[E.I_G2] = model.gap_back_m if back else 1e300
+    p[E.I_KB] = model.constraint_back_N_m if back else 0.0
+    p[E.I_CB] = model.constraint_back_damping_Ns_m if back else 0.0
+    p[E.I_BACK] = 1.0 if back else 0.0
     p[E.I_PD] = drive.amplitude_N
     p[E.I_F] = drive.frequency_Hz
     p[E.I_WAVE] = 0.0 if drive.waveform == "harmonic" else 1.0
@@ -294,6 +350,19 @@ def pack_params(model: CapsuleModel, drive: Drive, friction: Friction) -> np.nda
         p[E.I_LA] = 1e-3 * friction.a_mm_s * 1e3 ** friction.n
         p[E.I_LN] = friction.n
         p[E.I_LB] = 1e-3 * friction.b_mN
+    p[E.I_CV] = model.drag_Ns_m
+    p[E.I_KAP] = model.tilt_kappa
+    compliant = model.compliance_m_N > 0
+    if compliant:
+        if speed_law and model.substrate_damping_Ns_m > 0:
+            raise InputError("substrate_compliance with c_s > 0 takes a Coulomb friction level: a speed law "
+                             "would be implicit in the patch speed (use substrate_damping_Ns_m = 0)")
+        p[E.I_KS] = 1.0 / model.compliance_m_N
+        p[E.I_CS] = model.substrate_damping_Ns_m
+    # slips faster than I_VFAST go on the adaptive path: above V_min for a held speed law; every
+    # slip when the resisting force varies within a slip (literal law, drag, tilt); never for Coulomb
+    rk_all = (speed_law and friction.literal) or model.drag_Ns_m > 0 or model.tilt_kappa != 0 or compliant
+    p[E.I_VFAST] = 0.0 if rk_all else (vmin if speed_law else math.inf)
     mu = model.mass_magnet_kg * model.mass_capsule_kg / (model.mass_magnet_kg + model.mass_capsule_kg)
     xs = max(model.gap_m, drive.amplitude_N / model.spring_N_m, 1e-6)
     fs = max(drive.amplitude_N, model.spring_N_m * xs, pb if math.isfinite(pb) else 0.0)

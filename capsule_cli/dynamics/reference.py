@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from .model import CapsuleModel, Drive, Friction
+from .model import CapsuleModel, Drive, Friction, effective_friction
 
 
 @dataclass
@@ -33,16 +33,32 @@ class _Sys:
     def __init__(self, model: CapsuleModel, drive: Drive, friction: Friction):
         self.m = model
         self.d = drive
+        friction = effective_friction(model, friction)
         self.fr = friction
         self.Mm = model.mass_magnet_kg
         self.Mc = model.mass_capsule_kg
         self.Pb, self.L0, self.Vmin = friction.levels()
         self.law = friction.kind in ("eq22", "eq23", "law")
         self.Om = 2 * math.pi * drive.frequency_Hz
+        self.ks = 1.0 / model.compliance_m_N if model.compliance_m_N > 0 else 0.0
+        self.cs = model.substrate_damping_Ns_m
         self.T = 1.0 / drive.frequency_Hz
         self.nrhs = 0
 
-    def level(self, V):
+    def tilt(self, xr):
+        """Tilt scaling of the friction levels, max(0, 1 + kappa x_r / G_1) (tilt_friction)."""
+        return max(0.0, 1.0 + self.m.tilt_kappa * xr / self.m.gap_m)
+
+    def tilt_lin(self, xr):
+        """The tilt factor without the clamp (1 + kappa x_r / G_1): a smooth event function whose
+        sign changes exactly where the clamped threshold is crossed while |F_i| > 0."""
+        return 1.0 + self.m.tilt_kappa * xr / self.m.gap_m
+
+    def level(self, V, xr=0.0):
+        """Resisting force on the slipping shell: tilt-scaled friction level plus drag c_v |V|."""
+        return self.tilt(xr) * self._law(V) + self.m.drag_Ns_m * abs(V)
+
+    def _law(self, V):
         if not self.law:
             return self.L0
         if self.fr.literal:
@@ -69,7 +85,7 @@ class _Sys:
     def contact_of(self, xr):
         if xr >= self.m.gap_m:
             return 1
-        if self.m.double_sided and xr <= -self.m.gap_back_m:
+        if self.m.back_active and xr <= -self.m.gap_back_m:
             return 2
         return 0
 
@@ -79,19 +95,22 @@ class _Sys:
             return 0
         F = self.fi(contact, xr, vr)
         tol = 1e-11 * max(self.d.amplitude_N, self.Pb, 1e-9)
-        if abs(F) < self.Pb - tol:
+        Pb = self.Pb * self.tilt(xr)
+        if abs(F) < Pb - tol:
             return 0
         sgn = 1 if F > 0 else -1
-        if abs(F) <= self.Pb + tol:
+        if abs(F) <= Pb + tol:
             # at the threshold: stick if F_i moves back inside (its rate with the shell held)
             m = self.m
             K = m.spring_N_m + (m.constraint_N_m if contact == 1 else 0) + (m.constraint_back_N_m if contact == 2 else 0)
             C = m.damping_Ns_m + (m.constraint_damping_Ns_m if contact == 1 else 0) + \
                 (m.constraint_back_damping_Ns_m if contact == 2 else 0)
             Fdot = K * vr + C * (fe - F) / self.Mm
-            if F * Fdot <= 0:
+            # the threshold P_b (1 + kappa x_r / G_1) moves with x_r (tilt_friction)
+            dPb = self.Pb * self.m.tilt_kappa / self.m.gap_m * vr if Pb > 0 else 0.0
+            if sgn * Fdot - dPb <= 0:
                 return 0
-        L0 = 1e-3 * self.fr.b_mN if (self.law and self.fr.literal) else self.L0
+        L0 = (1e-3 * self.fr.b_mN if (self.law and self.fr.literal) else self.L0) * self.tilt(xr)
         if abs(F) - L0 < -tol:
             return None
         return sgn
@@ -106,11 +125,53 @@ class _Sys:
             F = self.fi(contact, xr, vr)
             fe = self.fe_seg(t)
             am = (fe - F) / Mm
+            if self.ks > 0:
+                # compliant wall: spring k_s + damper c_s to a massless patch with the friction
+                if shell == 0:
+                    Fs, dd = self.ks * y[4] + self.cs * y[3], y[3]
+                else:
+                    L = self.level(y[3], xr) - self.m.drag_Ns_m * abs(y[3])
+                    dd = (shell * L - self.ks * y[4]) / self.cs if self.cs > 0 else 0.0
+                    Fs = shell * L
+                ac = (F - Fs - self.m.drag_Ns_m * y[3]) / Mc
+                return np.array([y[2], y[3], am, ac, dd])
             if shell == 0:
-                return np.array([y[2], 0.0, am, 0.0])
-            ac = (-shell * self.level(y[3]) + F) / Mc
-            return np.array([y[2], y[3], am, ac])
+                return np.array([y[2], 0.0, am, 0.0, 0.0])
+            ac = (-shell * self.level(y[3], xr) + F) / Mc
+            return np.array([y[2], y[3], am, ac, 0.0])
         return f
+
+    def patch_force(self, y):
+        return self.ks * y[4] + self.cs * y[3]
+
+    def patch_speed(self, shell, y):
+        """Speed of the sliding patch (V_c minus the presliding spring's rate)."""
+        if self.cs == 0:
+            return y[3]
+        xr = y[0] - y[1]
+        L = self.level(0.0, xr)
+        return y[3] - (shell * L - self.ks * y[4]) / self.cs
+
+    def decide_patch(self, contact, y, fe):
+        """Patch state at V_p = 0 (compliant wall): 0 stuck, +1/-1 sliding; None if ill-posed."""
+        if math.isinf(self.Pb):
+            return 0
+        xr, vr = y[0] - y[1], y[2] - y[3]
+        F = self.patch_force(y)
+        tol = 1e-11 * max(self.d.amplitude_N, self.Pb, 1e-9)
+        Pb = self.Pb * self.tilt(xr)
+        if abs(F) < Pb - tol:
+            return 0
+        sgn = 1 if F > 0 else -1
+        if abs(F) <= Pb + tol:
+            ac = (self.fi(contact, xr, vr) - F - self.m.drag_Ns_m * y[3]) / self.Mc
+            Fdot = self.ks * y[3] + self.cs * ac
+            dPb = self.Pb * self.m.tilt_kappa / self.m.gap_m * vr if Pb > 0 else 0.0
+            if sgn * Fdot - dPb <= 0:
+                return 0
+        if abs(F) - self.L0 * self.tilt(xr) < -tol:
+            return None
+        return sgn
 
 
 def reference_run(model: CapsuleModel, drive: Drive, friction: Friction, periods: int, state0=None,
@@ -136,16 +197,26 @@ def reference_run(model: CapsuleModel, drive: Drive, friction: Friction, periods
     def max_step_of(contact_state):
         K = model.spring_N_m + (model.constraint_N_m if contact_state == 1 else 0.0) + \
             (model.constraint_back_N_m if contact_state == 2 else 0.0)
-        return 2 * math.pi / max(math.sqrt(K / mu), S.Om) / steps_per_period
+        w = max(math.sqrt(K / mu), S.Om)
+        if S.ks > 0:
+            w = max(w, math.sqrt((K + S.ks) / S.Mc + K / S.Mm), S.ks / S.cs if S.cs > 0 else 0.0)
+        return 2 * math.pi / w / steps_per_period
     if atol is None:
         atol = np.array([1e-15, 1e-15, 1e-12, 1e-12]) * (rtol / 1e-12)
+    atol = np.asarray(atol, float)
+    if atol.size == 4:  # the presliding spring extension d (substrate compliance) like a position
+        atol = np.append(atol, atol[0])
     s0 = np.zeros(4) if state0 is None else np.asarray(state0, float)
-    y = np.array([s0[2] + s0[0], s0[2], s0[3] + s0[1], s0[3]])
+    y = np.array([s0[2] + s0[0], s0[2], s0[3] + s0[1], s0[3], 0.0])
     T = S.T
     contact = S.contact_of(y[0] - y[1])
     t = 0.0
     square = drive.waveform == "square"
-    if y[3] == 0.0:
+    if S.ks > 0:
+        shell = S.decide_patch(contact, y, S.fe(0.0))
+        if shell is None:
+            raise RuntimeError("ill-posed friction law at t = 0")
+    elif y[3] == 0.0:
         shell = S.decide(contact, y[0] - y[1], y[2] - y[3], S.fe(0.0))
         if shell is None:
             raise RuntimeError("ill-posed friction law at t = 0")
@@ -176,17 +247,26 @@ def reference_run(model: CapsuleModel, drive: Drive, friction: Friction, periods
                 G1, G2 = m.gap_m, m.gap_back_m
                 if contact == 0:
                     mk(lambda tt, yy: G1 - (yy[0] - yy[1]), "front_contact_on")
-                    if m.double_sided:
+                    if m.back_active:
                         mk(lambda tt, yy: (yy[0] - yy[1]) + G2, "back_contact_on")
                 elif contact == 1:
                     mk(lambda tt, yy: (yy[0] - yy[1]) - G1, "front_contact_off")
                 else:
                     mk(lambda tt, yy: -G2 - (yy[0] - yy[1]), "back_contact_off")
                 c_ = contact
-                if shell == 0:
+                if S.ks > 0:
+                    sh = shell
+                    if shell == 0:
+                        mk(lambda tt, yy: S.Pb * S.tilt_lin(yy[0] - yy[1]) - S.patch_force(yy), "break+")
+                        mk(lambda tt, yy: S.Pb * S.tilt_lin(yy[0] - yy[1]) + S.patch_force(yy), "break-")
+                    else:
+                        mk(lambda tt, yy: sh * S.patch_speed(sh, yy), "slip_end")
+                elif shell == 0:
                     if not math.isinf(S.Pb):
-                        mk(lambda tt, yy: S.Pb - S.fi(c_, yy[0] - yy[1], yy[2] - yy[3]), "break+")
-                        mk(lambda tt, yy: S.Pb + S.fi(c_, yy[0] - yy[1], yy[2] - yy[3]), "break-")
+                        mk(lambda tt, yy: S.Pb * S.tilt_lin(yy[0] - yy[1]) - S.fi(c_, yy[0] - yy[1], yy[2] - yy[3]),
+                           "break+")
+                        mk(lambda tt, yy: S.Pb * S.tilt_lin(yy[0] - yy[1]) + S.fi(c_, yy[0] - yy[1], yy[2] - yy[3]),
+                           "break-")
                 else:
                     sh = shell
                     mk(lambda tt, yy: sh * yy[3], "slip_end")
@@ -219,10 +299,14 @@ def reference_run(model: CapsuleModel, drive: Drive, friction: Friction, periods
                 if kind.endswith("contact_on") or kind.endswith("contact_off"):
                     contact = {"front_contact_on": 1, "back_contact_on": 2}.get(kind, 0)
                     events.append((t, kind))
-                    if shell == 0:
+                    if shell == 0 and S.ks == 0:  # (compliant wall: the patch force does not jump)
                         new = S.decide(contact, xr, vr, fe)
                     else:
                         new = shell
+                elif S.ks > 0 and kind.startswith("break"):
+                    new = S.decide_patch(contact, y, fe)
+                elif S.ks > 0 and kind == "slip_end":
+                    new = 0  # the patch stops at the kinetic level (<= breakaway) and sticks
                 elif kind.startswith("break"):
                     new = S.decide(contact, xr, vr, fe)
                 elif kind == "slip_end":
@@ -234,7 +318,14 @@ def reference_run(model: CapsuleModel, drive: Drive, friction: Friction, periods
                     fast = not fast
                 if new is None:
                     raise RuntimeError(f"ill-posed friction law at t = {t}")
-                if new != shell:
+                if new != shell and S.ks > 0:
+                    if new == 0:
+                        events.append((t, "stick"))
+                    else:
+                        events.append((t, "slip_forward" if new == 1 else "slip_backward"))
+                        if shell == 0 and S.cs == 0:
+                            y[4] = new * S.level(0.0, xr) / S.ks  # c_s = 0: patch jumps to k_s d = sgn L
+                elif new != shell:
                     fast = False
                     if new == 0:
                         y[3] = 0.0

@@ -131,6 +131,10 @@ class Effect:
     guess: GuessFn | None = None
     bases: tuple[str, ...] = ()
     origin: str = "built-in"
+    #: dynamics kinds only: "drive" marks a per-row drive transform
+    #: ``apply(f_Hz, Pd_N, duty, p) -> (f_Hz, Pd_N, duty)`` (p: SI values by base name), applied to every
+    #: condition before it is simulated (capsule_cli.dynamics.system); "" for the others
+    role: str = ""
 
     def applicable(self, columns: Iterable[str], base: str | None = None) -> bool:
         """Return True when every covariate the effect needs is in ``columns`` (and the base fits)."""
@@ -188,7 +192,7 @@ def _check_params(owner: str, params: Sequence[Param], is_effect: bool) -> None:
 
 def register_effect(effect: Effect | None = None, *, name: str | None = None, kind: str | None = None,
                     params: Sequence[Param] = (), covariates: Sequence[str] = (), description: str = "",
-                    source: str = "", guess: GuessFn | None = None, bases: Sequence[str] = ()):
+                    source: str = "", guess: GuessFn | None = None, bases: Sequence[str] = (), role: str = ""):
     """Register an effect; use as ``register_effect(Effect(...))`` or as a decorator.
 
     As a decorator the function is ``apply(y, x, p, ctx) -> y`` (see the module doc)::
@@ -210,7 +214,7 @@ def register_effect(effect: Effect | None = None, *, name: str | None = None, ki
             raise ValueError("register_effect decorates a function apply(y, x, p, ctx)")
         eff = Effect(name=name or fn.__name__, kind=kind or "", description=description or (fn.__doc__ or "").strip(),
                      source=source or "user plugin", params=tuple(params), covariates=tuple(covariates),
-                     apply=fn, guess=guess, bases=tuple(bases), origin=_CURRENT_ORIGIN[-1])
+                     apply=fn, guess=guess, bases=tuple(bases), origin=_CURRENT_ORIGIN[-1], role=role)
         _add_effect(eff)
         return fn
 
@@ -227,6 +231,10 @@ def _add_effect(eff: Effect) -> None:
     if eff.origin == "built-in" and _CURRENT_ORIGIN[-1] != "built-in":
         eff = Effect(**{**eff.__dict__, "origin": _CURRENT_ORIGIN[-1]})
     _check_params(f"effect '{eff.name}'", eff.params, True)
+    if eff.role not in ("", "drive"):
+        raise ValueError(f"effect '{eff.name}': unknown role '{eff.role}' (\"drive\" for a drive transform)")
+    if eff.role == "drive" and eff.kind not in ("progression", "trajectory"):
+        raise ValueError(f"effect '{eff.name}': a drive transform is a progression or trajectory effect")
     for cov in eff.covariates:
         if split_unit(cov)[1] is None:
             raise ValueError(f"effect '{eff.name}': covariate '{cov}' needs a unit suffix (e.g. 'temperature_C')")
@@ -251,7 +259,7 @@ def _ensure_builtins() -> None:
     if _BUILTINS_LOADED:
         return
     _BUILTINS_LOADED = True
-    from . import friction, pressure, relaxation  # noqa: F401  (register on import)
+    from . import dynamics, friction, pressure, relaxation  # noqa: F401  (register on import)
 
 
 def effects(kind: str | None = None) -> list[Effect]:

@@ -1,0 +1,140 @@
+"""Built-in base models and effects of the dynamics kinds ``progression`` and ``trajectory``.
+
+A dynamics effect changes the equations of motion of the vibro-impact capsule (seed 000 eqs
+19-21), not a column of outputs: its terms are data of the engine's parameter row
+(:func:`capsule_cli.dynamics.model.pack_params`), simulated by :mod:`capsule_cli.dynamics.system`
+(``build_system`` / ``progression`` / ``trajectory``) and by ``simulate``, ``sweep`` and ``magnify``
+with ``--model FILE.yaml``. Forms: physics.md section 3, "Dynamics effects: the readings to use".
+
+Effects that change the equations of motion combine by ADDING their terms to the forces, so their
+order in a model file does not matter. Each effect's ``off`` values give the base model exactly
+(tests/test_dynamics_effects.py checks it to 1e-12). The ``apply`` of these effects is not a
+response transform: calling it raises, pointing to :func:`capsule_cli.dynamics.system.build_system`.
+
+Choices made here where physics.md leaves them open (tested in tests/test_dynamics_effects.py):
+
+* ``speed_dependent_friction``: V_min = 0.2 mm/s from configs/params/friction_laws_dynamics.yaml
+  (the law held below it, breakaway = max(P_f, law at 0+) = P_f + a (V_min)^n); start a = 8.778 mN,
+  n = 0.25 (seed 000 eq 17, the Case 1 fit); with a = 0 the exponent is irrelevant.
+* ``viscous_drag``: start c_v = 0.1 N s/m (1 mN at 10 mm/s, an order below P_f = 7.8 mN: a thin
+  mucus film; no seed gives a number); the drag acts only while the shell slides (V_c != 0).
+* ``tilt_friction``: start kappa = 0.2 (the level varies by +-20 % over the gap, seed 002 Fig 5 shows
+  a quasi-periodic friction of that order); the level is clamped at zero; the static and kinetic
+  levels are scaled alike, and the stick test uses the scaled breakaway at the current x_r.
+* ``substrate_compliance``: start 1/k_s = 0.2 mm/N (seed 002 reports ~6.8 um of normal deformation
+  under the capsule's ~34 mN weight, ~0.2 mm/N; the tangential compliance is taken of that order),
+  start c_s = 0. The limit c_s -> 0 is taken exactly: with c_s = 0 the sliding patch keeps
+  k_s d = sgn P_k and, when the breakaway exceeds the kinetic level, jumps there at breakaway with the
+  released spring energy dissipated (counted). c_s > 0 with a speed law is refused (the law would be
+  implicit in the patch speed). The drag acts on the shell velocity whenever it moves. Stick
+  (``stick_fraction``) means the patch is stuck; the shell still moves on the presliding spring.
+  Continuation (protocol up/down) restarts the presliding spring relaxed at each condition.
+* ``secondary_constraint``: on the one-sided base only (the double-sided base has it); start values
+  seed 002 Table 2 (97.06 N/mm, 0.35 N s/m) and the assumed G_2 = 0.1 mm of physics.md section 1.
+"""
+from __future__ import annotations
+
+from ..config import load_param_set
+from ..errors import InputError
+from .registry import BaseModel, Effect, Param, register_base, register_effect
+
+KINDS = ("progression", "trajectory")
+
+ADDITIVE = ("Effects of this kind change the equations of motion and combine by adding their terms "
+            "(order in the model file irrelevant).")
+
+
+def _not_a_transform(*_args, **_kw):
+    raise InputError("dynamics effects change the equations of motion; simulate them with "
+                     "capsule_cli.dynamics.system.build_system (progression / trajectory)")
+
+
+_PROTOTYPE_DESC = {
+    "mass_magnet_g": "magnet (inner mass) M_m", "mass_capsule_g": "shell M_c", "gap_mm": "forward gap G_1",
+    "spring_N_m": "helical spring stiffness k", "damping_Ns_m": "helical spring damping c",
+    "constraint_N_m": "forward constraint stiffness k_1", "constraint_damping_Ns_m": "forward contact damping",
+    "Pf_N": "Coulomb friction level P_f", "gap_back_mm": "backward gap G_2",
+    "constraint_back_N_m": "backward constraint stiffness k_b",
+    "constraint_back_damping_Ns_m": "backward contact damping c_b",
+}
+_BOUNDS = {
+    "mass_magnet_g": (0.01, 100.0), "mass_capsule_g": (0.01, 100.0), "gap_mm": (0.01, 20.0),
+    "spring_N_m": (0.1, 1e4), "damping_Ns_m": (0.0, 10.0), "constraint_N_m": (0.0, 1e7),
+    "constraint_damping_Ns_m": (0.0, 10.0), "Pf_N": (1e-6, 100.0), "gap_back_mm": (0.001, 20.0),
+    "constraint_back_N_m": (0.0, 1e7), "constraint_back_damping_Ns_m": (0.0, 10.0),
+}
+
+
+def _base_params(param_set: str) -> tuple[Param, ...]:
+    vals = load_param_set(param_set)
+    return tuple(Param(k, float(v), _BOUNDS[k], free=(k == "Pf_N"), description=_PROTOTYPE_DESC[k])
+                 for k, v in vals.items() if k in _BOUNDS)
+
+
+for _kind in KINDS:
+    register_base(BaseModel(
+        name="one_sided", kind=_kind,
+        description="Two-mass vibro-impact capsule with a forward constraint at x_r = G_1 and Coulomb friction "
+                    "on the shell (configs/params/prototype_one_sided.yaml). " + ADDITIVE,
+        source="seed 000 eqs 19-21 and Table 2 (labels per physics.md section 1)",
+        params=_base_params("prototype_one_sided"), predict=_not_a_transform))
+    register_base(BaseModel(
+        name="double_sided", kind=_kind,
+        description="Two-mass vibro-impact capsule with forward and backward constraints, each with contact "
+                    "damping (configs/params/prototype_double_sided.yaml; G_2 = 0.1 mm assumed). " + ADDITIVE,
+        source="seed 001 Appendix A; seed 002 Table 2",
+        params=_base_params("prototype_double_sided"), predict=_not_a_transform))
+
+    register_effect(Effect(
+        name="speed_dependent_friction", kind=_kind,
+        description="Kinetic level P_f + a|V_c|^n (V in mm/s), well posed: breakaway = max(P_f, law at 0+), "
+                    "law held below V_min = 0.2 mm/s. Off: a = 0. " + ADDITIVE,
+        source="seed 000 eqs 17, 22-23 (form F = a V^n + b with b = P_f); physics.md section 3",
+        params=(Param("a_mN", 8.778, (0.0, 5000.0), off=0.0,
+                      description="rise of the kinetic level at |V_c| = 1 mm/s"),
+                Param("n", 0.25, (0.05, 2.0), off=0.25,
+                      description="exponent of the speed law (irrelevant when a = 0)")),
+        covariates=(), apply=_not_a_transform))
+
+    register_effect(Effect(
+        name="secondary_constraint", kind=_kind,
+        description="Backward constraint at x_r = -G_2 with contact force k_b (x_r + G_2) + c_b v_r (not "
+                    "clipped at zero, as in the papers' model). Off: k_b = c_b = 0. " + ADDITIVE,
+        source="seed 001 Appendix A; seed 002 Table 2 (97.06 N/mm, 0.35 N s/m); G_2 = 0.1 mm assumed "
+               "(physics.md section 1)",
+        params=(Param("gap_back_mm", 0.1, (0.001, 20.0), off=0.1, description="backward gap G_2"),
+                Param("constraint_back_N_m", 97060.0, (0.0, 1e7), off=0.0,
+                      description="backward constraint stiffness k_b"),
+                Param("constraint_back_damping_Ns_m", 0.35, (0.0, 10.0), off=0.0,
+                      description="backward contact damping c_b")),
+        covariates=(), apply=_not_a_transform, bases=("one_sided",)))
+
+    register_effect(Effect(
+        name="viscous_drag", kind=_kind,
+        description="Force -c_v V_c on the shell while it slides (a mucus or lubricant film), added to the "
+                    "friction; its dissipation is counted with the friction's. Off: c_v = 0. " + ADDITIVE,
+        source="seed 001 (lubricants at the capsule-mucosa interface); physics.md section 3",
+        params=(Param("drag_Ns_m", 0.1, (0.0, 10.0), off=0.0, description="drag coefficient c_v"),),
+        covariates=(), apply=_not_a_transform))
+
+    register_effect(Effect(
+        name="substrate_compliance", kind=_kind,
+        description="The wall deforms tangentially before the capsule slides: spring k_s and damper c_s between "
+                    "the shell and a massless contact patch that carries the set-valued friction (elastic "
+                    "presliding in series with Coulomb friction). c_s = 0 is the exact c_s -> 0 limit. "
+                    "Off: compliance 1/k_s = 0 (rigid wall). " + ADDITIVE,
+        source="seed 002 sections 4-5 (intestinal deformation, ~6.8 um under the capsule's weight); "
+               "physics.md section 3",
+        params=(Param("compliance_mm_N", 0.2, (0.0, 100.0), off=0.0, description="tangential compliance 1/k_s"),
+                Param("substrate_damping_Ns_m", 0.0, (0.0, 10.0), off=0.0,
+                      description="damping c_s of the presliding element")),
+        covariates=(), apply=_not_a_transform))
+
+    register_effect(Effect(
+        name="tilt_friction", kind=_kind,
+        description="Friction levels (static and kinetic, the whole speed law) scaled by 1 + kappa x_r / G_1, "
+                    "held at zero where negative: the capsule tilts as the magnet moves. Off: kappa = 0. "
+                    + ADDITIVE,
+        source="seed 002 Fig 5 (quasi-periodic friction); physics.md section 3",
+        params=(Param("kappa", 0.2, (-2.0, 2.0), off=0.0, description="tilt sensitivity of the friction level"),),
+        covariates=(), apply=_not_a_transform))
