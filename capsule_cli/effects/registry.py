@@ -251,7 +251,7 @@ def _ensure_builtins() -> None:
     if _BUILTINS_LOADED:
         return
     _BUILTINS_LOADED = True
-    from . import friction, pressure, relaxation  # noqa: F401  (register on import)
+    from . import dynamics, friction, pressure, relaxation  # noqa: F401  (register on import)
 
 
 def effects(kind: str | None = None) -> list[Effect]:
