@@ -41,13 +41,17 @@ def register(app: typer.Typer) -> None:
         out: Path = typer.Option(..., "--out", "-o", help="Output table, .csv (+ .provenance.json) or .parquet; "
                                                           "name it *_synthetic.*"),
         noise_sd: Optional[float] = typer.Option(None, "--noise-sd", help="Noise SD in the response unit "
-                                                 "(friction: mN; pressure, relaxation: kPa)."),
+                                                 "(friction: mN; pressure, relaxation: kPa; progression: mm/s; "
+                                                 "trajectory: mm)."),
         noise_rel: float = typer.Option(0.0, "--noise-rel", help="Extra noise proportional to the response "
                                         "(fraction, e.g. 0.02 = 2 %)."),
         design: Optional[Path] = typer.Option(None, "--design", help="Design table of covariates (CSV, unit-suffixed "
                                               "columns: speed_mm_s, position_mm, time_s, Ri_mm, ...); default per kind "
                                               "in configs/designs/."),
-        replicates: int = typer.Option(1, "--replicates", help="Repeats of every design row (column 'trial')."),
+        replicates: int = typer.Option(1, "--replicates", help="Repeats of every design row (column 'trial'; "
+                                       "progression: repeated rows, each a later recorded window)."),
+        frame_rate_Hz: float = typer.Option(100.0, "--frame-rate-Hz", help="Trajectory kind: camera frame rate "
+                                            "[Hz] (frames from t = 0, rest, drive phase 0)."),
         seed: int = SEED,
         plugins: Optional[List[Path]] = PLUGINS,
         quiet: bool = QUIET,
@@ -62,13 +66,15 @@ def register(app: typer.Typer) -> None:
         m = _load(model, plugins)
         dpath = design or st.default_design(m.kind)
         d = st.read_design(dpath, m.kind)
-        df = st.synthesize(m, d, noise_sd or 0.0, noise_rel, replicates, seed, where=str(dpath))
+        df = st.synthesize(m, d, noise_sd or 0.0, noise_rel, replicates, seed, where=str(dpath),
+                           frame_rate_Hz=frame_rate_Hz)
         if "synthetic" not in out.name.lower():
             typer.echo(f"capsule-cli: warning: {out.name} does not say 'synthetic' in its name; "
                        "the metadata does, but name synthetic data *_synthetic.*", err=True)
         prov = st.synth_provenance(m, model.read_text(encoding="utf-8"), noise_sd or 0.0, noise_rel, replicates,
                                    seed, str(dpath), unit_label(response_column(m.kind)),
-                                   [str(p) for p in plugins or []])
+                                   [str(p) for p in plugins or []],
+                                   **({"frame_rate_Hz": frame_rate_Hz} if m.kind == "trajectory" else {}))
         st.write_synthetic(df, out, prov)
         if not quiet:
             typer.echo(f"wrote {out} ({len(df)} rows, synthetic, true model {m.name})", err=True)

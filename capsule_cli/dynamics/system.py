@@ -39,6 +39,9 @@ RESPONSE_CLASSES = ("no_impact", "one_impact", "multi_impact", "irregular")
 UNAVAILABLE = ("viscous_drag", "substrate_compliance", "tilt_friction")
 BUILTIN = ("speed_dependent_friction", "secondary_constraint") + UNAVAILABLE
 N_WINDOWS = 4
+#: relative tolerance of the adaptive (speed-law) slip segments in loop runs: far below any measurement
+#: noise of a progression speed or a camera position; the exact (linear) segments are unaffected
+LOOP_RK_RTOL = 1e-8
 
 
 @dataclass(frozen=True)
@@ -171,7 +174,7 @@ def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform="harmonic",
     n = f.size
     setups = [Drive(float(pdn[i]), float(f[i]), str(wf[i]), float(du[i])).validate() for i in range(n)]
     P = np.stack([pack_params(system.model, d, system.friction) for d in setups])
-    opts = EngineOptions(energy=False).pack()
+    opts = EngineOptions(energy=False, rk_rtol=LOOP_RK_RTOL).pack()
     ntr, nrec = int(protocol.transient_periods), int(protocol.recorded_periods)
     if protocol.start == "rest":
         st, per, _, _ = E.run_many(P, opts, np.zeros((n, 4)), ntr, nrec)
@@ -205,7 +208,7 @@ def trajectory(system: DynSystem, f_Hz: float, Pd_N: float, time_s, duty=None, w
     dt = float(steps.min()) if steps.size else max(tmax, 1e-3)
     periods = int(math.ceil(tmax * d.frequency_Hz + 1e-9)) + 1
     res = simulate(system.model, d, system.friction, periods=periods, transient_periods=0,
-                   sample_rate_Hz=1.0 / dt, options=EngineOptions(energy=False), record_events=False)
+                   sample_rate_Hz=1.0 / dt, options=EngineOptions(energy=False, rk_rtol=LOOP_RK_RTOL), record_events=False)
     tr = res.trajectory
     ts = tr["time_s"].to_numpy()
     return {"capsule_mm": np.interp(t, ts, tr["capsule_mm"].to_numpy()),
