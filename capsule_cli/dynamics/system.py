@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from functools import lru_cache
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -39,6 +40,9 @@ RESPONSE_CLASSES = ("no_impact", "one_impact", "multi_impact", "irregular")
 UNAVAILABLE = ("viscous_drag", "substrate_compliance", "tilt_friction")
 BUILTIN = ("speed_dependent_friction", "secondary_constraint") + UNAVAILABLE
 N_WINDOWS = 4
+#: Poincare points closer than this fraction of their spread count as repeating (period detection):
+#: loose enough that a slowly decaying transient after a short transient run is not called irregular
+PERIOD_REL_TOL = 1e-3
 #: relative tolerance of the adaptive (speed-law) slip segments in loop runs: far below any measurement
 #: noise of a progression speed or a camera position; the exact (linear) segments are unaffected
 LOOP_RK_RTOL = 1e-8
@@ -69,6 +73,12 @@ class DynSystem:
     transforms: tuple = field(default=())  # ((Effect, {key: SI}), ...)
 
 
+@lru_cache(maxsize=8)
+def _param_set(name: str) -> tuple[tuple[str, float], ...]:
+    """Return a configs/params set as ((name, value), ...), read once per process."""
+    return tuple((k, float(v)) for k, v in load_param_set(name).items())
+
+
 def build_system(base: str, params: Mapping[str, float], effects: Sequence[str] = ()) -> DynSystem:
     """Return the system of a base model (``one_sided``/``double_sided``) with ``effects`` switched on.
 
@@ -85,7 +95,7 @@ def build_system(base: str, params: Mapping[str, float], effects: Sequence[str] 
         if name in UNAVAILABLE:
             raise NotImplementedError(f"effect '{name}' needs the opened engine (issue 9); "
                                       "today's engine cannot simulate it")
-    merged = dict(load_param_set(BASE_PARAM_SETS[base]))
+    merged = dict(_param_set(BASE_PARAM_SETS[base]))
     merged.update({k: float(v) for k, v in params.items()})
     pf = float(merged.pop("Pf_N"))
     kw = {k: v for k, v in merged.items() if k in MODEL_PARAM_NAMES}
@@ -98,7 +108,7 @@ def build_system(base: str, params: Mapping[str, float], effects: Sequence[str] 
             kw.pop(k, None)
     model = CapsuleModel.from_params(kw, double_sided=double, where=f"{base} model")
     if "speed_dependent_friction" in effects and float(merged.get("a_mN", 0.0)) != 0.0:
-        vmin = float(load_param_set("friction_laws_dynamics")["v_min_mm_s"])
+        vmin = dict(_param_set("friction_laws_dynamics"))["v_min_mm_s"]
         fr = Friction(kind="law", static_N=pf, a_mN=float(merged["a_mN"]), n=float(merged.get("n", 0.25)),
                       b_mN=pf * 1e3, v_min_mm_s=vmin)
     elif math.isinf(pf):
@@ -139,7 +149,7 @@ def _summary(per: np.ndarray, f: float) -> dict:
     n = per.shape[0]
     T = 1.0 / f
     disp = per[:, E.P_DISP]
-    pn = period_number(per[:, E.P_XR0], per[:, E.P_VR0])
+    pn = period_number(per[:, E.P_XR0], per[:, E.P_VR0], rel_tol=PERIOD_REL_TOL)
     imp = float((per[:, E.P_NFRONT] + per[:, E.P_NBACK]).mean())
     # windows of whole response periods (period_number), so a periodic response has SD ~ 0
     m = max(pn, 1)

@@ -324,10 +324,12 @@ class Fit:
 
 
 def calibrate(bound: DynBound, y: np.ndarray, sigma: float, rows=None, x0=None, budget: Budget = Budget(),
-              seed: int = 0, warm: bool = False) -> Fit:
+              seed: int = 0, warm: bool = False, extra_starts: Sequence = ()) -> Fit:
     """Return the bounded multi-start Nelder-Mead fit of the free parameters on ``rows`` (all when None).
 
-    warm=True: one Nelder-Mead from x0 with the fold budget (cross-validation, bootstrap).
+    Starts: x0, ``extra_starts`` (e.g. an effect at its off values, so a nested model does at least
+    as well as the model without it), then the best points of the Sobol scan. warm=True: one
+    Nelder-Mead from x0 with the fold budget (cross-validation, bootstrap).
     """
     k = len(bound.free)
     start = bound.x0 if x0 is None else np.asarray(x0, float)
@@ -335,14 +337,19 @@ def calibrate(bound: DynBound, y: np.ndarray, sigma: float, rows=None, x0=None, 
         return Fit(np.array([], float), float(np.sum(_plain_sq(y, bound.simulate(None), sigma, rows))), 1, 0)
     lo, hi = bound.bounds
     span = hi - lo
+    # box coordinates u in [0, 1]: theta = lo + span u^2 for non-negative parameters spanning a decade or more
+    # (resolution near the lower bound, where stiffnesses, gaps and coefficients usually sit), else linear
+    quad = (lo >= 0) & (hi >= 10 * np.maximum(lo, 1e-300))
+    to_theta = lambda u: lo + span * np.where(quad, np.clip(u, 0, 1) ** 2, np.clip(u, 0, 1))  # noqa: E731
+    to_u = lambda th: np.where(quad, np.sqrt(np.clip((th - lo) / span, 0, 1)), np.clip((th - lo) / span, 0, 1))  # noqa: E731
     nfev = [0]
 
     def cost(u):
-        th = lo + np.clip(u, 0, 1) * span
+        th = to_theta(u)
         nfev[0] += 1
         return float(np.sum(_plain_sq(y, bound.simulate(th), sigma, rows)))
 
-    u0 = np.clip((start - lo) / span, 0, 1)
+    u0 = to_u(start)
     if warm:
         starts = [u0]
         maxfev = budget.fold_evals_per_param * k
@@ -351,7 +358,7 @@ def calibrate(bound: DynBound, y: np.ndarray, sigma: float, rows=None, x0=None, 
         scan = qmc.Sobol(k, scramble=True, seed=seed).random_base2(m)
         scores = [cost(u) for u in scan]
         best = [scan[i] for i in np.argsort(scores)[: max(budget.starts - 1, 0)]]
-        starts = [u0] + best
+        starts = [u0] + [to_u(np.asarray(x, float)) for x in extra_starts] + best
         maxfev = budget.evals_per_param * k
     best_u, best_c = u0, math.inf
     for u in starts:
@@ -361,7 +368,7 @@ def calibrate(bound: DynBound, y: np.ndarray, sigma: float, rows=None, x0=None, 
                                        "xatol": XATOL, "fatol": FATOL_NOISE * max(sigma, 1e-12) ** 2})
         if r.fun < best_c:
             best_u, best_c = np.clip(r.x, 0, 1), float(r.fun)
-    return Fit(lo + best_u * span, best_c, nfev[0], len(starts))
+    return Fit(to_theta(best_u), best_c, nfev[0], len(starts))
 
 
 @dataclass
@@ -411,11 +418,11 @@ class DynEvaluation:
 
 
 def evaluate(bound: DynBound, sigma: float, folds, groups, x0=None, budget: Budget = Budget(), seed: int = 0,
-             bootstrap: int = 0) -> DynEvaluation:
+             bootstrap: int = 0, extra_starts: Sequence = ()) -> DynEvaluation:
     """Return the calibration and grouped cross-validation (standardised errors) of ``bound``."""
     t0 = time.perf_counter()
     y = bound.observed()
-    fit = calibrate(bound, y, sigma, None, x0, budget, seed)
+    fit = calibrate(bound, y, sigma, None, x0, budget, seed, extra_starts=extra_starts)
     sim = bound.simulate(fit.theta)
     cv_pred = np.empty_like(y)
     cv_sq = np.empty_like(y)
@@ -736,11 +743,15 @@ def run_compare(model: Model, df: pd.DataFrame, data_path: str, out_dir, ledger=
 
 
 def fit_candidate(model: Model, eff: Effect, df, base: DynEvaluation, data_path, budget: Budget, seed: int):
-    """Return {effect, model, ev} of model + eff (starts: the base fit with the effect off and at its start)."""
+    """Return {effect, model, ev} of model + eff (starts: the base fit with the effect at its declared
+    start values, the same with the effect off, then the scan)."""
     vals = base.bound.values(base.theta)
-    m2 = model.with_values(vals).with_effect(eff, {p.name: p.off for p in eff.params})
+    m2 = model.with_values(vals).with_effect(eff)
     b2 = DynBound(m2, df, where=str(data_path), modes=getattr(base.bound, "modes", None))
-    ev = evaluate(b2, base.sigma, base.folds, base.groups, x0=b2.x0, budget=budget, seed=seed)
+    off = m2.with_values({s.key: s.param.off for s in m2.specs if s.owner == eff.name})
+    x_off = [s.value for s in off.specs if s.free]
+    ev = evaluate(b2, base.sigma, base.folds, base.groups, x0=b2.x0, budget=budget, seed=seed,
+                  extra_starts=[x_off])
     return {"effect": eff, "model": m2, "ev": ev}
 
 
