@@ -62,6 +62,8 @@ UNIT = {"progression": "mm/s", "trajectory": "mm"}
 DRIVE_COLS = ("f_Hz", "Pd_N", "duty", "waveform")
 XATOL = 2e-3  # Nelder-Mead stop: simplex size in box-scaled coordinates [-]
 FATOL_NOISE = 1e-2  # Nelder-Mead stop: cost change in units of the noise variance [-]
+#: how a trajectory run's drive is classified (steady response after 60 periods from rest, 16 recorded)
+RUN_CLASS_PROTOCOL = dsys.Protocol("rest", 60, 16)
 PENALTY = 1e6  # standardised squared error of a row where the engine fails (ill-posed parameters)
 
 
@@ -244,14 +246,14 @@ class DynBound:
         return {"pred": vel[ci], "spread": spread[ci], "cls": cls[ci]}
 
     def run_summary(self, theta=None) -> dict[str, dict]:
-        """Return per trajectory run the model's progression summary over its recorded whole periods."""
+        """Return per trajectory run the model's steady response at the run's drive (progression summary
+        after RUN_CLASS_PROTOCOL) and the run's whole periods from t = 0."""
         sysm = self.system(theta)
         out = {}
         for r, d in self.runs:
             f, pdn, duty, wf = self.run_drive[r]
-            k = max(int(math.floor(d["time_s"].max() * f + 1e-9)), 4)
-            pr = dsys.progression(sysm, [f], [pdn], duty=duty, waveform=wf,
-                                  protocol=dsys.Protocol("rest", 0, k))
+            k = max(int(math.floor(d["time_s"].max() * f + 1e-9)), 1)
+            pr = dsys.progression(sysm, [f], [pdn], duty=duty, waveform=wf, protocol=RUN_CLASS_PROTOCOL)
             out[r] = pr.iloc[0].to_dict() | {"periods": k}
         return out
 
@@ -270,25 +272,25 @@ class DynBound:
         for j, (mode, r, i) in enumerate(self.rows):
             s = summ[r]
             cls[j] = s["response_class"]
+            d = dict(self.runs)[r]
+            f, pdn, duty, wf = self.run_drive[r]
             if mode == "position":
                 if r not in pos:
-                    d = dict(self.runs)[r]
-                    f, pdn, duty, wf = self.run_drive[r]
                     tr = dsys.trajectory(sysm, f, pdn, d["time_s"].to_numpy(float), duty=duty, waveform=wf)
                     pos[r] = pd.Series(tr[self.response], index=d.index)
                 pred[j] = pos[r][i]
                 spread[j] = 0.0
-            else:
-                f = self.run_drive[r][0]
+            else:  # drift over the run's whole periods from rest; spread from the steady window SD
                 dur = s["periods"] / f
-                pred[j] = s["velocity_mm_s"] * dur
+                tr = dsys.trajectory(sysm, f, pdn, np.array([0.0, dur]), duty=duty, waveform=wf)
+                pred[j] = float(tr[self.response][1] - tr[self.response][0])
                 spread[j] = (s["window_sd_mm_s"] / 2) * dur if s["response_class"] == "irregular" else 0.0
         return {"pred": pred, "spread": spread, "cls": cls}
 
 
 def choose_modes(bound: DynBound, theta) -> dict[str, str]:
-    """Return per trajectory run 'position', or 'average_velocity' where the model's response at
-    the run's drive is irregular (no period <= 8 over the recorded whole periods)."""
+    """Return per trajectory run 'position', or 'average_velocity' where the model's steady response at
+    the run's drive is irregular (no period <= 8; RUN_CLASS_PROTOCOL)."""
     summ = bound.run_summary(theta)
     return {r: ("average_velocity" if s["response_class"] == "irregular" else "position") for r, s in summ.items()}
 
@@ -639,6 +641,11 @@ def dynamics_verdict(base: DynEvaluation, cands: Sequence[dict], sigma: float, n
     if winner is not None:
         left = [s for s in struct_after.get(winner["effect"].name, []) if s["p_adjusted"] < ALPHA]
         v.update(missing_effect=winner["effect"].name, winner=winner["effect"].name)
+        rf = base.bound.row_frame()
+        own = [c for c in winner["effect"].covariates if c in rf.columns and rf[c].nunique() >= 2]
+        if own:  # the winner's own covariate, as in the quasi-static verdict
+            v["covariate"] = min(own, key=lambda c: min((s["p_value"] for s in struct if s["covariate"] == c),
+                                                        default=1.0))
         v["message"] = (f"adding {winner['effect'].name} cuts the held-out error from {base.cv_rmse:.3g} to "
                         f"{winner['ev'].cv_rmse:.3g} {unit} (noise {sigma:.3g} {unit}; dBIC "
                         f"{winner['delta_bic']:.0f}). Where the model as is fails: {where}")
@@ -789,7 +796,7 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
                 "cv_rmse_se": c["ev"].cv_rmse_se, "cv_rmse_not_irregular":
                     c["ev"].plain_cv_rmse(c["ev"].sim["cls"].astype(str) != "irregular"),
                 "delta_cv_rmse": -c["delta_cv"], "delta_cv_rmse_se": c["delta_cv_se"], "delta_bic": c["delta_bic"],
-                "n_free": c["ev"].k, "passes": c["passes"], "reason": c["reason"], "seconds": c["ev"].seconds,
+                "rmse": c["ev"].rmse, "n_free": c["ev"].k, "passes": c["passes"], "reason": c["reason"], "seconds": c["ev"].seconds,
                 "params": {k: v for k, v in pt.items() if v["owner"] == c["effect"].name}}
 
     result = {
