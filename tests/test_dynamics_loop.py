@@ -17,7 +17,7 @@ from capsule_cli.errors import InputError
 from capsule_cli.steps import dynamics_loop as DL
 
 NOISE = 0.5  # generating noise SD [mm/s]
-BUDGET = DL.Budget(scan_per_param=4, starts=2, evals_per_param=20, fold_evals_per_param=8, bootstrap=0)
+BUDGET = DL.Budget(scan_per_param=4, starts=2, evals_per_param=40, fold_evals_per_param=8, bootstrap=0)
 PROTO = {"start": "rest", "transient_periods": 40, "recorded_periods": 16}
 DESIGN = pd.DataFrame({"f_Hz": np.tile([30.0, 34.0, 38.0], 2), "Pd_N": np.repeat([0.15, 0.25], 3)})
 
@@ -65,6 +65,9 @@ def test_model_file_protocol_defaults_and_errors(tmp_path):
     p.write_text("kind: progression\nbase: one_sided\nprotocol: {start: sideways}\n")
     with pytest.raises(InputError, match="start"):
         load_model_file(p)
+    p.write_text("kind: friction\nbase: coulomb\nprotocol: {start: rest}\n")
+    with pytest.raises(InputError, match="protocol"):
+        build_model(p)
     p.write_text("kind: progression\nbase: one_sided\nprotocol: {transient: 3}\n")
     with pytest.raises(InputError, match="transient"):
         load_model_file(p)

@@ -147,6 +147,8 @@ def build_model(source: str | os.PathLike | ModelFile, path: str | None = None) 
         where = str(source)
         mf = load_model_file(source)
     pre = f"{where}: "
+    if mf.protocol is not None and mf.kind not in ("progression", "trajectory"):
+        raise InputError(f"{pre}protocol: only dynamics models (progression, trajectory) say how conditions were run")
     base = get_base(mf.kind, mf.base, where=f"{where}: base: ")
     effs: list[Effect] = []
     for i, name in enumerate(mf.effects):

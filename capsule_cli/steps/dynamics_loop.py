@@ -60,10 +60,12 @@ DYN_KINDS = ("progression", "trajectory")
 RESPONSE = {"progression": "velocity_mm_s", "trajectory": "capsule_mm"}
 UNIT = {"progression": "mm/s", "trajectory": "mm"}
 DRIVE_COLS = ("f_Hz", "Pd_N", "duty", "waveform")
-XATOL = 2e-3  # Nelder-Mead stop: simplex size in box-scaled coordinates [-]
+XATOL = 2e-4  # Nelder-Mead stop: simplex size in box-scaled coordinates [-] (responses are sensitive)
 FATOL_NOISE = 1e-2  # Nelder-Mead stop: cost change in units of the noise variance [-]
 #: how a trajectory run's drive is classified (steady response after 60 periods from rest, 16 recorded)
 RUN_CLASS_PROTOCOL = dsys.Protocol("rest", 60, 16)
+COLD_STEP = 0.15  # initial Nelder-Mead simplex edge in box coordinates, full calibration [-]
+WARM_STEP = 0.02  # the same for warm-started refits (folds, bootstrap): a local refinement [-]
 PENALTY = 1e6  # standardised squared error of a row where the engine fails (ill-posed parameters)
 
 
@@ -363,8 +365,9 @@ def calibrate(bound: DynBound, y: np.ndarray, sigma: float, rows=None, x0=None, 
         starts = [u0] + [to_u(np.asarray(x, float)) for x in extra_starts] + best
         maxfev = budget.evals_per_param * k
     best_u, best_c = u0, math.inf
+    step = WARM_STEP if warm else COLD_STEP
     for u in starts:
-        simplex = [u] + [np.clip(u + np.eye(k)[i] * (0.15 if u[i] < 0.85 else -0.15), 0, 1) for i in range(k)]
+        simplex = [u] + [np.clip(u + np.eye(k)[i] * (step if u[i] < 1 - step else -step), 0, 1) for i in range(k)]
         r = optimize.minimize(cost, u, method="Nelder-Mead", bounds=[(0, 1)] * k,
                               options={"maxfev": maxfev, "initial_simplex": np.array(simplex),
                                        "xatol": XATOL, "fatol": FATOL_NOISE * max(sigma, 1e-12) ** 2})
