@@ -142,10 +142,8 @@ def test_hidden_secondary_constraint_is_named_and_fits_to_noise(hidden_secondary
     assert win["cv_rmse_not_irregular"] < 0.1 * r["model_as_is"]["cv_rmse"]
 
 
-@pytest.mark.xfail(strict=False, reason="6-condition design: a fold refit on 4 conditions can land on another "
-                   "response branch near a bifurcation (held-out 0.6-1.3 mm/s measured, 0.6 needed); the "
-                   "40-condition benchmark is the place to check this criterion")
 def test_hidden_secondary_constraint_held_out_at_noise(hidden_secondary):
+    # fold refits on 4 of 6 conditions; warm-started, a local refinement of the full fit
     r, _ = hidden_secondary
     win = next(c for c in r["candidates"] if c["effect"] == "secondary_constraint")
     assert win["cv_rmse_not_irregular"] <= 1.2 * NOISE

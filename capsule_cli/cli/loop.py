@@ -12,6 +12,8 @@ from .common import QUIET
 
 PLUGINS = typer.Option(None, "--plugins", help="Python file(s) registering extra effects (repeat the option).")
 SEED = typer.Option(0, "--seed", help="Random seed (fold assignment, multi-start, noise).")
+EFFORT = typer.Option("full", "--effort", help="Dynamics kinds (progression, trajectory): calibration budget, "
+                      "'full' or 'quick' (fewer starts, evaluations and bootstrap resamples: a first look, smoke runs).")
 FOLDS = typer.Option(5, "--folds", help="Number of cross-validation folds (groups: trial/run, else identical covariates).")
 
 
@@ -30,6 +32,14 @@ def _data(data: Path, model, kind: Optional[str]):
     if k != model.kind:
         raise InputError(f"{model.path}: a {model.kind} model cannot be compared with a {k} table")
     return read_measurements(data, kind=k)
+
+
+def _effort(name: str):
+    from ..steps.dynamics_loop import EFFORTS
+
+    if name not in EFFORTS:
+        raise InputError(f"--effort: unknown '{name}' (one of {', '.join(EFFORTS)})")
+    return EFFORTS[name]
 
 
 def register(app: typer.Typer) -> None:
@@ -88,15 +98,20 @@ def register(app: typer.Typer) -> None:
         kind: Optional[str] = typer.Option(None, "--kind", help="Table kind (default: the model's)."),
         folds: int = FOLDS,
         seed: int = SEED,
+        effort: str = EFFORT,
         plugins: Optional[List[Path]] = PLUGINS,
         quiet: bool = QUIET,
     ):
         """Calibrate a model's free parameters on measurements; error metrics (held-out RMSE, noise), figures, ledger row."""
+        from ..steps import dynamics_loop
         from ..steps.compare import run_compare
 
         m = _load(model, plugins)
         df, k = _data(data, m, kind)
-        met = run_compare(m, df, k, str(data), out, ledger, folds, seed)
+        if dynamics_loop.is_dynamics(k):
+            met = dynamics_loop.run_compare(m, df, str(data), out, ledger, folds, seed, budget=_effort(effort))
+        else:
+            met = run_compare(m, df, k, str(data), out, ledger, folds, seed)
         if not quiet:
             typer.echo(f"{m.name}: n={met['n']} rmse={met['rmse']:.4g} cv_rmse={met['cv_rmse']:.4g}"
                        f"±{met['cv_rmse_se']:.2g} noise={met['noise_sd']:.4g} {met['unit']}", err=True)
@@ -113,15 +128,21 @@ def register(app: typer.Typer) -> None:
         kind: Optional[str] = typer.Option(None, "--kind", help="Table kind (default: the model's)."),
         folds: int = FOLDS,
         seed: int = SEED,
+        effort: str = EFFORT,
         plugins: Optional[List[Path]] = PLUGINS,
         quiet: bool = QUIET,
     ):
         """Where the model fails and which physical effect is missing, ranked by held-out error and BIC."""
+        from ..steps import dynamics_loop
         from ..steps.diagnose import run_diagnose
 
         m = _load(model, plugins)
         df, k = _data(data, m, kind)
-        r = run_diagnose(m, df, k, str(data), out, write_model, folds, seed, add_best=add_best, quiet=quiet)
+        if dynamics_loop.is_dynamics(k):
+            r = dynamics_loop.run_diagnose(m, df, str(data), out, write_model, folds, seed, add_best=add_best,
+                                           quiet=quiet, budget=_effort(effort))
+        else:
+            r = run_diagnose(m, df, k, str(data), out, write_model, folds, seed, add_best=add_best, quiet=quiet)
         if write_model is not None and r["verdict"]["missing_effect"] is None and not add_best:
             typer.echo(f"capsule-cli: note: no effect named; {write_model} is the model unchanged", err=True)
         if not quiet:

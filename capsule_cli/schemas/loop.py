@@ -25,6 +25,8 @@ class LoopStudy(Strict):
     dynamics_design: str = Field(default="progression_grid.csv",
                                  description="design of the dynamics demo (configs/designs/)")
     dynamics_replicates: int = Field(default=2, ge=1, description="replicates per condition of the dynamics demo [-]")
+    dynamics_effort: Literal["full", "quick"] = Field(default="full", description="calibration budget of the "
+                                                      "dynamics demo (capsule-cli --effort)")
     noise_sd_progression_mm_s: float = Field(default=0.5, ge=0, description="noise SD of the progression demo [mm/s]")
     published: bool = Field(default=True, description="also run the loops on the published seed values "
                                                       "(configs/data/)")

@@ -81,6 +81,11 @@ class Budget:
     bootstrap: int = 20
 
 
+#: named budgets (CLI --effort): full (default) and quick (smoke runs, a first look)
+EFFORTS = {"full": Budget(), "quick": Budget(scan_per_param=4, starts=2, evals_per_param=20,
+                                             fold_evals_per_param=6, bootstrap=5)}
+
+
 def is_dynamics(kind: str) -> bool:
     """Return True for the dynamics kinds (progression, trajectory)."""
     return kind in DYN_KINDS

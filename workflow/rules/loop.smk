@@ -186,11 +186,12 @@ rule loop_dynamics_compare_base:
     params:
         out=f"{LOOP_DIR}/dyn_{{dkind}}/compare_as_is",
         folds=LOOP.folds,
+        effort=LOOP.dynamics_effort,
     log:
         f"{LOOP_DIR}/dyn_{{dkind}}/logs/compare_as_is.log",
     shell:
         "capsule-cli compare --model {input.model} --data {input.data} --out {params.out} "
-        "--ledger {output.ledger} --folds {params.folds} --quiet 2> {log}"
+        "--ledger {output.ledger} --folds {params.folds} --effort {params.effort} --quiet 2> {log}"
 
 
 rule loop_dynamics_diagnose:
@@ -205,11 +206,12 @@ rule loop_dynamics_diagnose:
     params:
         out=f"{LOOP_DIR}/dyn_{{dkind}}/diagnosis",
         folds=LOOP.folds,
+        effort=LOOP.dynamics_effort,
     log:
         f"{LOOP_DIR}/dyn_{{dkind}}/logs/diagnose.log",
     shell:
         "capsule-cli diagnose --model {input.model} --data {input.data} --out {params.out} "
-        "--write-model {output.model} --folds {params.folds} --quiet 2> {log}"
+        "--write-model {output.model} --folds {params.folds} --effort {params.effort} --quiet 2> {log}"
 
 
 rule loop_dynamics_compare_improved:
@@ -223,11 +225,12 @@ rule loop_dynamics_compare_improved:
     params:
         out=f"{LOOP_DIR}/dyn_{{dkind}}/compare_with_effect",
         folds=LOOP.folds,
+        effort=LOOP.dynamics_effort,
     log:
         f"{LOOP_DIR}/dyn_{{dkind}}/logs/compare_with_effect.log",
     shell:
         "capsule-cli compare --model {input.model} --data {input.data} --out {params.out} "
-        "--ledger {output.ledger} --folds {params.folds} --quiet 2> {log}"
+        "--ledger {output.ledger} --folds {params.folds} --effort {params.effort} --quiet 2> {log}"
 
 
 rule loop_dynamics_ledger_plot:
