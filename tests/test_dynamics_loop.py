@@ -16,6 +16,8 @@ from capsule_cli.effects.model import build_model
 from capsule_cli.errors import InputError
 from capsule_cli.steps import dynamics_loop as DL
 
+pytestmark = pytest.mark.xdist_group("dynamics_loop")  # one worker: module fixtures run once
+
 NOISE = 0.5  # generating noise SD [mm/s]
 BUDGET = DL.Budget(scan_per_param=4, starts=2, evals_per_param=40, fold_evals_per_param=8, bootstrap=0)
 PROTO = {"start": "rest", "transient_periods": 40, "recorded_periods": 16}
