@@ -57,6 +57,8 @@ from . import crossval
 from .residual_tests import noise_estimate, structure_tests
 
 DYN_KINDS = ("progression", "trajectory")
+#: response classes of dynamics.system.progression (contract section 2, verdict.regime)
+RESPONSE_CLASSES = ("no_impact", "one_impact", "multi_impact", "irregular")
 RESPONSE = {"progression": "velocity_mm_s", "trajectory": "capsule_mm"}
 UNIT = {"progression": "mm/s", "trajectory": "mm"}
 DRIVE_COLS = ("f_Hz", "Pd_N", "duty", "waveform")
@@ -545,7 +547,7 @@ def by_class(ev: DynEvaluation) -> list[dict]:
     """Return per response class: n, held-out RMSE (plain), standardised held-out RMS, mean residual."""
     out = []
     cls = ev.sim["cls"].astype(str)
-    for c in dsys.RESPONSE_CLASSES + ("failed",):
+    for c in RESPONSE_CLASSES + ("failed",):
         m = cls == c
         if not m.any():
             continue
@@ -560,7 +562,7 @@ def regime_of(ev: DynEvaluation, sigma: float) -> str | None:
     squared error over sigma^2), or None when no class exceeds twice the noise variance."""
     cls = ev.sim["cls"].astype(str)
     best, score = None, 0.0
-    for c in dsys.RESPONSE_CLASSES:
+    for c in RESPONSE_CLASSES:
         m = cls == c
         if m.sum() < 2:
             continue
@@ -582,7 +584,7 @@ def plain_summary(ev: DynEvaluation, sigma: float) -> str:
     z = ev.resid / np.sqrt(sigma ** 2 + np.nan_to_num(ev.sim["spread"]) ** 2) if sigma > 0 else ev.resid
     cls = ev.sim["cls"].astype(str)
     parts = []
-    for c in dsys.RESPONSE_CLASSES:
+    for c in RESPONSE_CLASSES:
         m = cls == c
         if not m.any():
             continue
@@ -900,7 +902,7 @@ def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str
     col = [c for c in res.columns if c.startswith("residual_")][0]
     xcol = "f_Hz" if ev.bound.kind == "progression" else "time_s"
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
-    for c in dsys.RESPONSE_CLASSES + ("failed",):
+    for c in RESPONSE_CLASSES + ("failed",):
         m = res["response_class"] == c
         if m.any():
             ax.plot(res.loc[m, xcol], res.loc[m, col], "o", ms=4, label=c)
