@@ -12,7 +12,7 @@ RESUME := --rerun-incomplete
 # the rules call capsule-cli: the venv's bin comes first on PATH
 export PATH := $(CURDIR)/$(BIN):$(PATH)
 
-.PHONY: study test setup smoke report clean-results
+.PHONY: study test test-slow setup smoke report clean-results
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -34,7 +34,11 @@ smoke: $(STAMP)
 	$(BIN)/snakemake -s workflow/Snakefile --configfile configs/smoke.yaml --cores $(CORES) -p $(RESUME)
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n $(CORES) --dist loadgroup
+	$(BIN)/python -m pytest -q -n $(CORES) --dist loadgroup -m "not slow"
+
+# the dynamics-loop tests: minutes of engine time each, not part of CI's make test
+test-slow: $(STAMP)
+	$(BIN)/python -m pytest -q -n $(CORES) --dist loadgroup -m slow
 
 clean-results:
 	rm -rf results/*/ results/*.parquet

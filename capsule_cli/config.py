@@ -232,6 +232,21 @@ class FreeParam(Strict):
         return v
 
 
+class RunProtocol(Strict):
+    """How each condition of dynamics data was run (contract section 4 ``protocol``).
+
+    Defaults where the file is silent: every condition from rest, 120 transient periods,
+    60 recorded periods (the dynamics stage's defaults, configs/study.yaml).
+    """
+
+    start: Literal["rest", "up", "down"] = Field(
+        default="rest", description="rest (every condition from rest), up or down (continuation in frequency "
+                                    "at each amplitude)")
+    transient_periods: int = Field(default=120, ge=0, description="drive periods run first and not recorded [-]")
+    recorded_periods: int = Field(default=60, ge=4, description="drive periods over which the average velocity "
+                                                                "is taken [-]")
+
+
 class ModelFile(Strict):
     """A model file: a base model of a measurement kind plus named physical effects."""
 
@@ -242,6 +257,8 @@ class ModelFile(Strict):
                                                  description="fixed numbers or {value, free, bounds}")
     name: str | None = Field(default=None, description="a label for the ledger (default: file stem)")
     notes: str = Field(default="", description="free text")
+    protocol: RunProtocol | None = Field(default=None, description="dynamics kinds only: how each condition was "
+                                                                   "run (defaults: rest, 120, 60)")
 
     @field_validator("params")
     @classmethod

@@ -12,6 +12,8 @@ from .common import QUIET, check_outputs
 
 PLUGINS = typer.Option(None, "--plugins", help="Python file(s) registering extra effects (repeat the option).")
 SEED = typer.Option(0, "--seed", help="Random seed (fold assignment, multi-start, noise).")
+EFFORT = typer.Option("full", "--effort", help="Dynamics kinds (progression, trajectory): calibration budget, "
+                      "'full' or 'quick' (fewer starts, evaluations and bootstrap resamples: a first look, smoke runs).")
 FOLDS = typer.Option(5, "--folds", help="Number of cross-validation folds (groups: trial/run, else identical covariates).")
 
 
@@ -43,6 +45,14 @@ def _data(data: Path, model, kind: Optional[str], drop_incomplete: bool = False)
     return df, k
 
 
+def _effort(name: str):
+    from ..steps.dynamics_loop import EFFORTS
+
+    if name not in EFFORTS:
+        raise InputError(f"--effort: unknown '{name}' (one of {', '.join(EFFORTS)})")
+    return EFFORTS[name]
+
+
 def register(app: typer.Typer) -> None:
     """Add the loop's commands to ``app``."""
 
@@ -52,13 +62,17 @@ def register(app: typer.Typer) -> None:
         out: Path = typer.Option(..., "--out", "-o", help="Output table, .csv (+ .provenance.json) or .parquet; "
                                                           "name it *_synthetic.*"),
         noise_sd: Optional[float] = typer.Option(None, "--noise-sd", help="Noise SD in the response unit "
-                                                 "(friction: mN; pressure, relaxation: kPa)."),
+                                                 "(friction: mN; pressure, relaxation: kPa; progression: mm/s; "
+                                                 "trajectory: mm)."),
         noise_rel: float = typer.Option(0.0, "--noise-rel", help="Extra noise proportional to the response "
                                         "(fraction, e.g. 0.02 = 2 %)."),
         design: Optional[Path] = typer.Option(None, "--design", help="Design table of covariates (CSV, unit-suffixed "
                                               "columns: speed_mm_s, position_mm, time_s, Ri_mm, ...); default per kind "
                                               "in configs/designs/."),
-        replicates: int = typer.Option(1, "--replicates", help="Repeats of every design row (column 'trial')."),
+        replicates: int = typer.Option(1, "--replicates", help="Repeats of every design row (column 'trial'; "
+                                       "progression: repeated rows, each a later recorded window)."),
+        frame_rate_Hz: float = typer.Option(100.0, "--frame-rate-Hz", help="Trajectory kind: camera frame rate "
+                                            "[Hz] (frames from t = 0, rest, drive phase 0)."),
         seed: int = SEED,
         plugins: Optional[List[Path]] = PLUGINS,
         quiet: bool = QUIET,
@@ -74,13 +88,15 @@ def register(app: typer.Typer) -> None:
         m = _load(model, plugins)
         dpath = design or st.default_design(m.kind)
         d = st.read_design(dpath, m.kind)
-        df = st.synthesize(m, d, noise_sd or 0.0, noise_rel, replicates, seed, where=str(dpath))
+        df = st.synthesize(m, d, noise_sd or 0.0, noise_rel, replicates, seed, where=str(dpath),
+                           frame_rate_Hz=frame_rate_Hz)
         if "synthetic" not in out.name.lower():
             typer.echo(f"capsule-cli: warning: {out.name} does not say 'synthetic' in its name; "
                        "the metadata does, but name synthetic data *_synthetic.*", err=True)
         prov = st.synth_provenance(m, model.read_text(encoding="utf-8"), noise_sd or 0.0, noise_rel, replicates,
                                    seed, str(dpath), unit_label(response_column(m.kind)),
-                                   [str(p) for p in plugins or []])
+                                   [str(p) for p in plugins or []],
+                                   **({"frame_rate_Hz": frame_rate_Hz} if m.kind == "trajectory" else {}))
         st.write_synthetic(df, out, prov)
         if not quiet:
             typer.echo(f"wrote {out} ({len(df)} rows, synthetic, true model {m.name})", err=True)
@@ -94,17 +110,22 @@ def register(app: typer.Typer) -> None:
         kind: Optional[str] = typer.Option(None, "--kind", help="Table kind (default: the model's)."),
         folds: int = FOLDS,
         seed: int = SEED,
+        effort: str = EFFORT,
         plugins: Optional[List[Path]] = PLUGINS,
         drop_incomplete: bool = DROP,
         quiet: bool = QUIET,
     ):
         """Calibrate a model's free parameters on measurements; error metrics (held-out RMSE, noise), figures, ledger row."""
         check_outputs(folder=out, ledger=ledger)  # before any work (exit 2 naming the path)
+        from ..steps import dynamics_loop
         from ..steps.compare import run_compare
 
         m = _load(model, plugins)
         df, k = _data(data, m, kind, drop_incomplete)
-        met = run_compare(m, df, k, str(data), out, ledger, folds, seed)
+        if dynamics_loop.is_dynamics(k):
+            met = dynamics_loop.run_compare(m, df, str(data), out, ledger, folds, seed, budget=_effort(effort))
+        else:
+            met = run_compare(m, df, k, str(data), out, ledger, folds, seed)
         if not quiet:
             typer.echo(f"{m.name}: n={met['n']} rmse={met['rmse']:.4g} cv_rmse={met['cv_rmse']:.4g}"
                        f"±{met['cv_rmse_se']:.2g} noise={met['noise_sd']:.4g} {met['unit']}", err=True)
@@ -121,17 +142,23 @@ def register(app: typer.Typer) -> None:
         kind: Optional[str] = typer.Option(None, "--kind", help="Table kind (default: the model's)."),
         folds: int = FOLDS,
         seed: int = SEED,
+        effort: str = EFFORT,
         plugins: Optional[List[Path]] = PLUGINS,
         drop_incomplete: bool = DROP,
         quiet: bool = QUIET,
     ):
         """Where the model fails and which physical effect is missing: a verdict by a rule fixed in advance (F test, held-out error)."""
         check_outputs(folder=out, write_model=write_model)  # before any work (exit 2 naming the path)
+        from ..steps import dynamics_loop
         from ..steps.diagnose import run_diagnose
 
         m = _load(model, plugins)
         df, k = _data(data, m, kind, drop_incomplete)
-        r = run_diagnose(m, df, k, str(data), out, write_model, folds, seed, add_best=add_best, quiet=quiet)
+        if dynamics_loop.is_dynamics(k):
+            r = dynamics_loop.run_diagnose(m, df, str(data), out, write_model, folds, seed, add_best=add_best,
+                                           quiet=quiet, budget=_effort(effort))
+        else:
+            r = run_diagnose(m, df, k, str(data), out, write_model, folds, seed, add_best=add_best, quiet=quiet)
         if write_model is not None and r["verdict"]["missing_effect"] is None and not add_best:
             typer.echo(f"capsule-cli: note: no effect named; {write_model} is the model unchanged", err=True)
         if not quiet:

@@ -120,6 +120,8 @@ class Model:
             elif given or s.owner != "base":
                 params[s.key] = v_out
         out = {"kind": self.kind, "base": self.base.name, "effects": list(self.effect_names), "params": params}
+        if self.content.get("protocol"):
+            out["protocol"] = dict(self.content["protocol"])
         if name:
             out["name"] = name
         if notes:
@@ -129,7 +131,8 @@ class Model:
 
 def model_content_hash(content: Mapping) -> str:
     """Return the hash of what defines a model (kind, base, effects, params), not its name or notes."""
-    return config_hash({k: content.get(k) for k in ("kind", "base", "effects", "params")})
+    keys = ("kind", "base", "effects", "params") + (("protocol",) if content.get("protocol") else ())
+    return config_hash({k: content.get(k) for k in keys})
 
 
 def build_model(source: str | os.PathLike | ModelFile, path: str | None = None) -> Model:
@@ -145,6 +148,8 @@ def build_model(source: str | os.PathLike | ModelFile, path: str | None = None) 
         where = str(source)
         mf = load_model_file(source)
     pre = f"{where}: "
+    if mf.protocol is not None and mf.kind not in ("progression", "trajectory"):
+        raise InputError(f"{pre}protocol: only dynamics models (progression, trajectory) say how conditions were run")
     base = get_base(mf.kind, mf.base, where=f"{where}: base: ")
     effs: list[Effect] = []
     for i, name in enumerate(mf.effects):

@@ -19,5 +19,15 @@ class LoopStudy(Strict):
     noise_sd_friction_mN: float = Field(default=1.5, ge=0, description="noise SD of the friction demo [mN]")
     noise_sd_pressure_kPa: float = Field(default=0.2, ge=0, description="noise SD of the pressure demo [kPa]")
     noise_sd_relaxation_kPa: float = Field(default=0.05, ge=0, description="noise SD of the relaxation demo [kPa]")
+    dynamics_kinds: list[Literal["progression"]] = Field(
+        default_factory=list,
+        description="dynamics kinds with a hidden-effect demo (progression: speed_dependent_friction hidden); off "
+                    "by default until the dynamics loop runs within the study's time budget on the opened engine")
+    dynamics_design: str = Field(default="progression_grid.csv",
+                                 description="design of the dynamics demo (configs/designs/)")
+    dynamics_replicates: int = Field(default=2, ge=1, description="replicates per condition of the dynamics demo [-]")
+    dynamics_effort: Literal["full", "quick"] = Field(default="full", description="calibration budget of the "
+                                                      "dynamics demo (capsule-cli --effort)")
+    noise_sd_progression_mm_s: float = Field(default=0.5, ge=0, description="noise SD of the progression demo [mm/s]")
     published: bool = Field(default=True, description="also run the loops on the published seed values "
                                                       "(configs/data/)")

@@ -267,7 +267,10 @@ def metrics(ev: Evaluation, noise: dict, data_path: str, dhash: str, k_folds: in
 def run_compare(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_dir: str | Path,
                 ledger: str | Path | None, k_folds: int = 5, seed: int = 0, figures: bool = True) -> dict:
     """Calibrate ``model`` on the table, cross-validate, write metrics, residuals, figures and a ledger row."""
-    from ..plots import loop as plots
+    from . import dynamics_loop
+
+    if dynamics_loop.is_dynamics(kind):  # progression, trajectory: the engine-based loop
+        return dynamics_loop.run_compare(model, df, data_path, out_dir, ledger, k_folds, seed, figures)
     from .ledger import append_ledger
 
     out = Path(out_dir)

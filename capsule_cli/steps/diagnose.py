@@ -257,6 +257,11 @@ def run_diagnose(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_
                  write_model: str | Path | None = None, k_folds: int = 5, seed: int = 0,
                  add_best: bool = False, quiet: bool = True, figures: bool = True) -> dict:
     """Diagnose ``model`` against the table; write diagnosis.json/.md, figures and optionally the new model."""
+    from . import dynamics_loop
+
+    if dynamics_loop.is_dynamics(kind):  # progression, trajectory: the engine-based loop
+        return dynamics_loop.run_diagnose(model, df, data_path, out_dir, write_model, k_folds, seed,
+                                          add_best=add_best, quiet=quiet, figures=figures)
     dg = diagnose_table(model, df, kind, str(data_path), k_folds, seed, quiet)
     result, base, cands, winner, winner_named, covs, df = (dg.result, dg.base, dg.cands, dg.winner,
                                                             dg.winner_named, dg.covs, dg.df)

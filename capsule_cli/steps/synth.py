@@ -22,7 +22,8 @@ from ..units import split_unit
 
 #: default design per kind (configs/designs/)
 DEFAULT_DESIGNS = {"friction": "friction_speed.csv", "pressure": "pressure_speed.csv",
-                   "relaxation": "relaxation_record.csv"}
+                   "relaxation": "relaxation_record.csv", "progression": "progression_grid.csv",
+                   "trajectory": "trajectory_runs.csv"}
 
 
 def default_design(kind: str) -> Path:
@@ -64,8 +65,24 @@ def read_design(path: str | Path, kind: str) -> pd.DataFrame:
 
 
 def synthesize(model: Model, design: pd.DataFrame, noise_sd: float, noise_rel: float, replicates: int,
-               seed: int, where: str = "design") -> pd.DataFrame:
-    """Return the synthetic table: design rows x replicates (``trial`` 1..N) with the noisy response."""
+               seed: int, where: str = "design", frame_rate_Hz: float = 100.0) -> pd.DataFrame:
+    """Return the synthetic table: design rows x replicates (``trial`` 1..N) with the noisy response.
+
+    Dynamics kinds go to :mod:`.dynamics_loop`: progression speeds at the design's conditions
+    (replicates as repeated rows), trajectories as a camera records them at ``frame_rate_Hz``.
+    """
+    from . import dynamics_loop
+
+    if dynamics_loop.is_dynamics(model.kind):
+        if noise_rel:
+            raise InputError("--noise-rel is not available for dynamics data: give --noise-sd")
+        if noise_sd < 0:
+            raise InputError("noise must be >= 0")
+        if model.kind == "progression":
+            return dynamics_loop.synthesize_progression(model, design, noise_sd, replicates, seed)
+        if replicates != 1:
+            raise InputError(f"{where}: trajectory replicates are separate runs: list them in the design")
+        return dynamics_loop.synthesize_trajectory(model, design, noise_sd, frame_rate_Hz, seed)
     if replicates < 1:
         raise InputError(f"--replicates must be >= 1, got {replicates}")
     if noise_sd < 0 or noise_rel < 0:
@@ -95,9 +112,10 @@ def synthesize(model: Model, design: pd.DataFrame, noise_sd: float, noise_rel: f
 
 
 def synth_provenance(model: Model, model_text: str, noise_sd: float, noise_rel: float, replicates: int, seed: int,
-                     design_path: str, unit: str, plugins: list[str]) -> dict:
-    """Return the metadata of a synthetic table (true model, noise, seed, design)."""
-    return provenance(config_hash=model.hash, seed=seed, synthetic=True,
+                     design_path: str, unit: str, plugins: list[str], **extra) -> dict:
+    """Return the metadata of a synthetic table (true model, noise, seed, design; ``extra``: e.g. the
+    trajectory frame rate)."""
+    return provenance(config_hash=model.hash, seed=seed, synthetic=True, **extra,
                       true_model=model.content, true_model_text=model_text, true_model_hash=model.hash,
                       true_model_file=user_path(model.path) if model.path else model.path, noise_sd=noise_sd, noise_rel=noise_rel, noise_unit=unit,
                       replicates=replicates, design=user_path(design_path), plugins=plugins,

@@ -136,3 +136,114 @@ if LOOP.enabled:
     _demos = list(LOOP.kinds) + ([f"published_{k}" for k in LOOP_PUBLISHED] if LOOP.published else [])
     LOOP_TARGETS += [f"{LOOP_DIR}/{d}/ledger.png" for d in _demos]
     LOOP_TARGETS += [f"{LOOP_DIR}/{d}/diagnose/diagnosis.md" for d in _demos]
+
+
+# ---------------------------------------------------------------------------
+# loop_dynamics: the dynamics loop demo (issue 12) under results/loop/dyn_<kind>/:
+# synth with a hidden effect -> compare the base model -> diagnose --write-model ->
+# compare the improved model -> ledger plot. The protocol is in the model files. File names differ from the
+# quasi-static demos' so that no output pattern of theirs matches (their {demo} wildcard spans folders).
+
+LOOP_DYN_PKG = LOOP_PKG + pkg("effects/dynamics.py", "steps/dynamics_loop.py", "dynamics/system.py",
+                              "dynamics/engine.py", "dynamics/model.py")
+LOOP_DYN_DEMOS = {
+    # kind: (true model with the hidden effect, base model)
+    "progression": ("progression_sdf_truth.yaml", "progression_base.yaml"),
+}
+
+
+def _dyn_model(w, i):
+    return str(CONFIGS / "models" / LOOP_DYN_DEMOS[w.dkind][i])
+
+
+rule loop_dynamics_synth:
+    input:
+        truth=lambda w: _dyn_model(w, 0),
+        design=str(CONFIGS / "designs" / LOOP.dynamics_design),
+        code=LOOP_DYN_PKG,
+    output:
+        data=f"{LOOP_DIR}/dyn_{{dkind}}/{{dkind}}_synthetic.csv",
+    params:
+        noise=LOOP.noise_sd_progression_mm_s,
+        reps=LOOP.dynamics_replicates,
+        seed=STUDY.seed,
+    log:
+        f"{LOOP_DIR}/dyn_{{dkind}}/logs/synth.log",
+    shell:
+        "capsule-cli synth --model {input.truth} --design {input.design} --noise-sd {params.noise} "
+        "--replicates {params.reps} --seed {params.seed} --out {output.data} --quiet 2> {log}"
+
+
+rule loop_dynamics_compare_base:
+    input:
+        model=lambda w: _dyn_model(w, 1),
+        data=f"{LOOP_DIR}/dyn_{{dkind}}/{{dkind}}_synthetic.csv",
+        code=LOOP_DYN_PKG,
+    output:
+        metrics=f"{LOOP_DIR}/dyn_{{dkind}}/compare_as_is/metrics.json",
+        ledger=f"{LOOP_DIR}/dyn_{{dkind}}/ledger_as_is.parquet",
+    params:
+        out=f"{LOOP_DIR}/dyn_{{dkind}}/compare_as_is",
+        folds=LOOP.folds,
+        effort=LOOP.dynamics_effort,
+    log:
+        f"{LOOP_DIR}/dyn_{{dkind}}/logs/compare_as_is.log",
+    shell:
+        "capsule-cli compare --model {input.model} --data {input.data} --out {params.out} "
+        "--ledger {output.ledger} --folds {params.folds} --effort {params.effort} --quiet 2> {log}"
+
+
+rule loop_dynamics_diagnose:
+    input:
+        model=lambda w: _dyn_model(w, 1),
+        data=f"{LOOP_DIR}/dyn_{{dkind}}/{{dkind}}_synthetic.csv",
+        code=LOOP_DYN_PKG,
+    output:
+        diagnosis=f"{LOOP_DIR}/dyn_{{dkind}}/diagnosis/diagnosis.json",
+        report=f"{LOOP_DIR}/dyn_{{dkind}}/diagnosis/diagnosis.md",
+        model=f"{LOOP_DIR}/dyn_{{dkind}}/model_with_effect.yaml",
+    params:
+        out=f"{LOOP_DIR}/dyn_{{dkind}}/diagnosis",
+        folds=LOOP.folds,
+        effort=LOOP.dynamics_effort,
+    log:
+        f"{LOOP_DIR}/dyn_{{dkind}}/logs/diagnose.log",
+    shell:
+        "capsule-cli diagnose --model {input.model} --data {input.data} --out {params.out} "
+        "--write-model {output.model} --folds {params.folds} --effort {params.effort} --quiet 2> {log}"
+
+
+rule loop_dynamics_compare_improved:
+    input:
+        model=f"{LOOP_DIR}/dyn_{{dkind}}/model_with_effect.yaml",
+        data=f"{LOOP_DIR}/dyn_{{dkind}}/{{dkind}}_synthetic.csv",
+        code=LOOP_DYN_PKG,
+    output:
+        metrics=f"{LOOP_DIR}/dyn_{{dkind}}/compare_with_effect/metrics.json",
+        ledger=f"{LOOP_DIR}/dyn_{{dkind}}/ledger_with_effect.parquet",
+    params:
+        out=f"{LOOP_DIR}/dyn_{{dkind}}/compare_with_effect",
+        folds=LOOP.folds,
+        effort=LOOP.dynamics_effort,
+    log:
+        f"{LOOP_DIR}/dyn_{{dkind}}/logs/compare_with_effect.log",
+    shell:
+        "capsule-cli compare --model {input.model} --data {input.data} --out {params.out} "
+        "--ledger {output.ledger} --folds {params.folds} --effort {params.effort} --quiet 2> {log}"
+
+
+rule loop_dynamics_ledger_plot:
+    input:
+        base=f"{LOOP_DIR}/dyn_{{dkind}}/ledger_as_is.parquet",
+        improved=f"{LOOP_DIR}/dyn_{{dkind}}/ledger_with_effect.parquet",
+    output:
+        fig=f"{LOOP_DIR}/dyn_{{dkind}}/error_ledger.png",
+    log:
+        f"{LOOP_DIR}/dyn_{{dkind}}/logs/ledger_plot.log",
+    shell:
+        "capsule-cli ledger plot --ledger {input.base} --ledger {input.improved} --out {output.fig} 2> {log}"
+
+
+if LOOP.enabled:
+    LOOP_TARGETS += [f"{LOOP_DIR}/dyn_{k}/error_ledger.png" for k in LOOP.dynamics_kinds]
+    LOOP_TARGETS += [f"{LOOP_DIR}/dyn_{k}/diagnosis/diagnosis.md" for k in LOOP.dynamics_kinds]

@@ -1,0 +1,982 @@
+"""The loop for dynamics data (kinds ``progression`` and ``trajectory``): synth, compare, diagnose.
+
+A dynamics model file (contract section 4) is run by the event-driven engine through
+:mod:`capsule_cli.dynamics.system` (``build_system``, ``progression``, ``trajectory``) under the
+file's ``protocol`` (defaults: every condition from rest, 120 transient and 60 recorded periods).
+
+Comparison rows
+---------------
+* progression: one row per measured condition; the model's average velocity over the recorded
+  periods at that condition.
+* trajectory: per run, the capsule position at every frame time (``compared = position``);
+  where the calibrated model's response at the run's drive is irregular (no period <= 8:
+  phase drift, chaos) the run is compared by its average velocity over whole periods instead,
+  as one row holding the drift over those periods in mm (``compared = average_velocity``).
+
+Error model
+-----------
+Each comparison row i has SD_i = sqrt(sigma^2 + s_i^2): sigma the measurement noise
+(:func:`.residual_tests.noise_estimate`, replicates when present), s_i the spread of the
+model's own response there: the SD of the average velocity over the recorded periods estimated
+from 4 windows (window SD / 2), zero for a periodic response. Held-out errors, BIC and the
+verdict use the standardised squared errors r_i^2 sigma^2 / SD_i^2, so chaos is not mistaken for
+a missing effect. Calibration itself minimises the plain sum of squares: weighting there would
+let the optimiser prefer parameters whose response is chaotic (a large spread excuses any misfit).
+
+Calibration
+-----------
+Bounded, multi-start, derivative-free (the objective is piecewise and non-smooth in the
+parameters: impacts appear and vanish): a scrambled Sobol scan of the box, then bounded
+Nelder-Mead (scipy) from the best scan points and the start values, in coordinates scaled to
+[0, 1]. Each evaluation runs all conditions in parallel (numba ``prange`` in ``run_many``).
+Cross-validation: grouped K-fold (:mod:`.crossval`; never splitting a run or replicates),
+each fold warm-started from the full fit. 95 % intervals: percentile bootstrap over the
+cross-validation groups (each resample refitted warm-started), stated in the metrics.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+from scipy import optimize
+from scipy.stats import qmc
+
+from ..dynamics import system as dsys
+from ..effects.model import Model
+from ..effects.registry import Effect
+from ..errors import InputError
+from ..fitting import information_criteria
+from ..tables import (Column, TableSchema, is_synthetic, provenance, write_json_atomic, write_measurements,
+                      write_table, write_text_atomic)
+from . import crossval
+from .residual_tests import noise_estimate, structure_tests
+
+DYN_KINDS = ("progression", "trajectory")
+#: response classes of dynamics.system.progression (contract section 2, verdict.regime)
+RESPONSE_CLASSES = ("no_impact", "one_impact", "multi_impact", "irregular")
+RESPONSE = {"progression": "velocity_mm_s", "trajectory": "capsule_mm"}
+UNIT = {"progression": "mm/s", "trajectory": "mm"}
+DRIVE_COLS = ("f_Hz", "Pd_N", "duty", "waveform")
+XATOL = 2e-4  # Nelder-Mead stop: simplex size in box-scaled coordinates [-] (responses are sensitive)
+FATOL_NOISE = 1e-2  # Nelder-Mead stop: cost change in units of the noise variance [-]
+#: how a trajectory run's drive is classified (steady response after 60 periods from rest, 16 recorded)
+RUN_CLASS_PROTOCOL = dsys.Protocol("rest", 60, 16)
+COLD_STEP = 0.15  # initial Nelder-Mead simplex edge in box coordinates, full calibration [-]
+WARM_STEP = 0.02  # the same for warm-started refits (folds, bootstrap): a local refinement [-]
+PENALTY = 1e6  # standardised squared error of a row where the engine fails (ill-posed parameters)
+
+
+@dataclass(frozen=True)
+class Budget:
+    """Calibration budget: Sobol scan points per free parameter, Nelder-Mead starts, evaluations
+    per start and free parameter, evaluations per fold refit and parameter, bootstrap resamples."""
+
+    scan_per_param: int = 6
+    starts: int = 2
+    evals_per_param: int = 30
+    fold_evals_per_param: int = 10
+    bootstrap: int = 20
+
+
+#: named budgets (CLI --effort): full (default) and quick (smoke runs, a first look)
+EFFORTS = {"full": Budget(), "quick": Budget(scan_per_param=4, starts=2, evals_per_param=20,
+                                             fold_evals_per_param=6, bootstrap=5)}
+
+
+def is_dynamics(kind: str) -> bool:
+    """Return True for the dynamics kinds (progression, trajectory)."""
+    return kind in DYN_KINDS
+
+
+def protocol_of(model: Model) -> dsys.Protocol:
+    """Return the model file's protocol (contract section 4) with documented defaults."""
+    raw = dict(model.content.get("protocol") or {})
+    return dsys.Protocol(**{k: raw[k] for k in ("start", "transient_periods", "recorded_periods") if k in raw})
+
+
+def _drive_of(d: pd.DataFrame, where: str) -> tuple[float, float, float | None, str]:
+    for c in ("f_Hz", "Pd_N"):
+        if c not in d.columns:
+            raise InputError(f"{where}: missing column '{c}' (the drive of each run)")
+        if d[c].nunique() != 1:
+            raise InputError(f"{where}: column '{c}' changes within run '{d['run'].iloc[0]}' (one drive per run)")
+    duty = float(d["duty"].iloc[0]) if "duty" in d.columns else None
+    wf = str(d["waveform"].iloc[0]) if "waveform" in d.columns else "harmonic"
+    return float(d["f_Hz"].iloc[0]), float(d["Pd_N"].iloc[0]), duty, wf
+
+
+# ---------------------------------------------------------------------------
+# the model tied to a table
+
+
+class DynBound:
+    """A dynamics model tied to a table: ``simulate(theta)`` gives predictions per comparison row.
+
+    theta holds the free parameters in the unit of each name's suffix (as in the model file).
+    """
+
+    def __init__(self, model: Model, df: pd.DataFrame, where: str = "", modes: Mapping | None = None):
+        self.model, self.df, self.where = model, df.reset_index(drop=True), where or "table"
+        self.kind = model.kind
+        self.protocol = protocol_of(model)
+        self.free = [s for s in model.specs if s.free]
+        self.response = RESPONSE[self.kind]
+        self.column_pf = self.kind == "progression" and "Pf_N" in df.columns
+        if self.column_pf and any(s.param.name == "Pf_N" for s in self.free):
+            raise InputError(f"{model.path}: params.Pf_N: free, but the table gives 'Pf_N' row by row: "
+                             "fix it or drop the column")
+        if self.kind == "progression":
+            cols = [c for c in DRIVE_COLS + ("Pf_N",) if c in self.df.columns]
+            self.cond_cols = cols
+            key = self.df[cols].astype(str).agg("|".join, axis=1)
+            self.cond_index, uniq = pd.factorize(key)
+            first = pd.Series(np.arange(len(self.df))).groupby(self.cond_index).first().to_numpy()
+            self.conditions = self.df.iloc[first][cols].reset_index(drop=True)
+        else:
+            self.runs = [(str(r), d) for r, d in self.df.groupby("run", sort=False)]
+            self.run_drive = {r: _drive_of(d, self.where) for r, d in self.runs}
+            self.modes = dict(modes) if modes else {r: "position" for r, _ in self.runs}
+            self._build_rows()
+
+    # -- parameters
+    @property
+    def names(self) -> list[str]:
+        return [s.key for s in self.free]
+
+    @property
+    def x0(self) -> np.ndarray:
+        return np.array([s.value for s in self.free], float)
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        lo = np.array([s.bounds[0] for s in self.free], float)
+        hi = np.array([s.bounds[1] for s in self.free], float)
+        return lo, hi
+
+    def values(self, theta=None) -> dict[str, float]:
+        """Return ``{spec key: value}`` (declared units) with the free ones from theta."""
+        vals = {s.key: s.value for s in self.model.specs}
+        if theta is not None:
+            for s, v in zip(self.free, theta):
+                vals[s.key] = float(v)
+        return vals
+
+    def system(self, theta=None, Pf_N: float | None = None) -> dsys.DynSystem:
+        vals = self.values(theta)
+        params = {s.param.name: vals[s.key] for s in self.model.specs}
+        if Pf_N is not None:
+            params["Pf_N"] = Pf_N
+        return dsys.build_system(self.model.base.name, params, self.model.effect_names)
+
+    # -- rows
+    def _build_rows(self):
+        """Trajectory comparison rows: frames of position-mode runs, one row per velocity-mode run."""
+        rows, obs, groups = [], [], []
+        for gi, (r, d) in enumerate(self.runs):
+            if self.modes[r] == "position":
+                for i in d.index:
+                    rows.append(("position", r, int(i)))
+                obs += list(d[self.response].to_numpy(float))
+                groups += [gi] * len(d)
+            else:
+                t = d["time_s"].to_numpy(float)
+                x = d[self.response].to_numpy(float)
+                f = self.run_drive[r][0]
+                k = int(math.floor(t.max() * f + 1e-9))
+                t_end = k / f
+                rows.append(("average_velocity", r, int(d.index[0])))
+                obs.append(float(np.interp(t_end, t, x) - np.interp(0.0, t, x)))
+                groups.append(gi)
+        self.rows = rows
+        self._obs = np.array(obs, float)
+        self._groups = np.array(groups, int)
+
+    def observed(self) -> np.ndarray:
+        if self.kind == "progression":
+            return self.df[self.response].to_numpy(float)
+        return self._obs
+
+    def row_frame(self) -> pd.DataFrame:
+        """Return the table behind the comparison rows (progression: the data; trajectory: per row)."""
+        if self.kind == "progression":
+            return self.df.copy()
+        recs = []
+        for mode, r, i in self.rows:
+            rec = self.df.loc[i].to_dict()
+            rec["compared"] = mode
+            if mode == "average_velocity":
+                d = dict(self.runs)[r]
+                f = self.run_drive[r][0]
+                k = int(math.floor(d["time_s"].max() * f + 1e-9))
+                rec["time_s"] = k / f
+            recs.append(rec)
+        return pd.DataFrame(recs)
+
+    def groups(self) -> tuple[np.ndarray, str]:
+        if self.kind == "progression":
+            return crossval.cv_groups(self.df, self.response)
+        return self._groups, "by 'run'"
+
+    # -- simulation
+    def simulate(self, theta=None) -> dict:
+        """Return {'pred', 'spread', 'cls'} per comparison row (response unit; spread: SD of the
+        model's own average there; cls: response class at the row's drive)."""
+        if self.kind == "progression":
+            return self._sim_progression(theta)
+        return self._sim_trajectory(theta)
+
+    def _sim_progression(self, theta) -> dict:
+        c = self.conditions
+        n = len(c)
+        vel, spread = np.full(n, np.nan), np.full(n, np.nan)
+        cls = np.array(["failed"] * n, dtype=object)
+        pfs = c["Pf_N"].to_numpy(float) if self.column_pf else np.full(n, np.nan)
+        for pf in (np.unique(pfs) if self.column_pf else [None]):
+            sel = np.flatnonzero(pfs == pf) if pf is not None else np.arange(n)
+            try:
+                sysm = self.system(theta, None if pf is None else float(pf))
+                wf = c["waveform"].to_numpy(object)[sel] if "waveform" in c else "harmonic"
+                du = c["duty"].to_numpy(float)[sel] if "duty" in c else None
+                out = dsys.progression(sysm, c["f_Hz"].to_numpy(float)[sel], c["Pd_N"].to_numpy(float)[sel],
+                                       duty=du, waveform=wf, protocol=self.protocol)
+            except NotImplementedError:
+                raise
+            except (InputError, RuntimeError, ValueError, FloatingPointError):
+                continue
+            vel[sel] = out["velocity_mm_s"].to_numpy()
+            spread[sel] = np.where(out["response_class"] == "irregular", out["window_sd_mm_s"].to_numpy() / 2, 0.0)
+            cls[sel] = out["response_class"].to_numpy(object)
+        ci = self.cond_index
+        return {"pred": vel[ci], "spread": spread[ci], "cls": cls[ci]}
+
+    def run_summary(self, theta=None) -> dict[str, dict]:
+        """Return per trajectory run the model's steady response at the run's drive (progression summary
+        after RUN_CLASS_PROTOCOL) and the run's whole periods from t = 0."""
+        sysm = self.system(theta)
+        out = {}
+        for r, d in self.runs:
+            f, pdn, duty, wf = self.run_drive[r]
+            k = max(int(math.floor(d["time_s"].max() * f + 1e-9)), 1)
+            pr = dsys.progression(sysm, [f], [pdn], duty=duty, waveform=wf, protocol=RUN_CLASS_PROTOCOL)
+            out[r] = pr.iloc[0].to_dict() | {"periods": k}
+        return out
+
+    def _sim_trajectory(self, theta) -> dict:
+        m = len(self.rows)
+        pred, spread = np.full(m, np.nan), np.zeros(m)
+        cls = np.array(["failed"] * m, dtype=object)
+        try:
+            sysm = self.system(theta)
+            summ = self.run_summary(theta)
+        except NotImplementedError:
+            raise
+        except (InputError, RuntimeError, ValueError, FloatingPointError):
+            return {"pred": pred, "spread": spread, "cls": cls}
+        pos = {}
+        for j, (mode, r, i) in enumerate(self.rows):
+            s = summ[r]
+            cls[j] = s["response_class"]
+            d = dict(self.runs)[r]
+            f, pdn, duty, wf = self.run_drive[r]
+            if mode == "position":
+                if r not in pos:
+                    tr = dsys.trajectory(sysm, f, pdn, d["time_s"].to_numpy(float), duty=duty, waveform=wf)
+                    pos[r] = pd.Series(tr[self.response], index=d.index)
+                pred[j] = pos[r][i]
+                spread[j] = 0.0
+            else:  # drift over the run's whole periods from rest; spread from the steady window SD
+                dur = s["periods"] / f
+                tr = dsys.trajectory(sysm, f, pdn, np.array([0.0, dur]), duty=duty, waveform=wf)
+                pred[j] = float(tr[self.response][1] - tr[self.response][0])
+                spread[j] = (s["window_sd_mm_s"] / 2) * dur if s["response_class"] == "irregular" else 0.0
+        return {"pred": pred, "spread": spread, "cls": cls}
+
+
+def choose_modes(bound: DynBound, theta) -> dict[str, str]:
+    """Return per trajectory run 'position', or 'average_velocity' where the model's steady response at
+    the run's drive is irregular (no period <= 8; RUN_CLASS_PROTOCOL)."""
+    summ = bound.run_summary(theta)
+    return {r: ("average_velocity" if s["response_class"] == "irregular" else "position") for r, s in summ.items()}
+
+
+# ---------------------------------------------------------------------------
+# calibration and cross-validation
+
+
+def _std_sq(y, sim, sigma, rows=None) -> np.ndarray:
+    """Return standardised squared errors (r^2 sigma^2 / SD^2, response unit squared) per row."""
+    pred, spread = sim["pred"], sim["spread"]
+    if rows is not None:
+        y, pred, spread = y[rows], pred[rows], spread[rows]
+    w = sigma ** 2 / (sigma ** 2 + np.nan_to_num(spread) ** 2) if sigma > 0 else np.ones_like(y)
+    sq = (y - pred) ** 2 * w
+    return np.where(np.isfinite(sq), sq, PENALTY * max(sigma, 1.0) ** 2)
+
+
+def _plain_sq(y, sim, sigma, rows=None) -> np.ndarray:
+    """Return plain squared errors per row (failed rows: a large penalty)."""
+    pred = sim["pred"] if rows is None else sim["pred"][rows]
+    yy = y if rows is None else y[rows]
+    sq = (yy - pred) ** 2
+    return np.where(np.isfinite(sq), sq, PENALTY * max(sigma, 1.0) ** 2)
+
+
+@dataclass
+class Fit:
+    theta: np.ndarray
+    cost: float
+    nfev: int
+    starts: int
+
+
+def calibrate(bound: DynBound, y: np.ndarray, sigma: float, rows=None, x0=None, budget: Budget = Budget(),
+              seed: int = 0, warm: bool = False, extra_starts: Sequence = ()) -> Fit:
+    """Return the bounded multi-start Nelder-Mead fit of the free parameters on ``rows`` (all when None).
+
+    Starts: x0, ``extra_starts`` (e.g. an effect at its off values, so a nested model does at least
+    as well as the model without it), then the best points of the Sobol scan. warm=True: one
+    Nelder-Mead from x0 with the fold budget (cross-validation, bootstrap).
+    """
+    k = len(bound.free)
+    start = bound.x0 if x0 is None else np.asarray(x0, float)
+    if k == 0:
+        return Fit(np.array([], float), float(np.sum(_plain_sq(y, bound.simulate(None), sigma, rows))), 1, 0)
+    lo, hi = bound.bounds
+    span = hi - lo
+    # box coordinates u in [0, 1]: theta = lo + span u^2 for non-negative parameters spanning a decade or more
+    # (resolution near the lower bound, where stiffnesses, gaps and coefficients usually sit), else linear
+    quad = (lo >= 0) & (hi >= 10 * np.maximum(lo, 1e-300))
+    to_theta = lambda u: lo + span * np.where(quad, np.clip(u, 0, 1) ** 2, np.clip(u, 0, 1))  # noqa: E731
+    to_u = lambda th: np.where(quad, np.sqrt(np.clip((th - lo) / span, 0, 1)), np.clip((th - lo) / span, 0, 1))  # noqa: E731
+    nfev = [0]
+
+    def cost(u):
+        th = to_theta(u)
+        nfev[0] += 1
+        return float(np.sum(_plain_sq(y, bound.simulate(th), sigma, rows)))
+
+    u0 = to_u(start)
+    if warm:
+        starts = [u0]
+        maxfev = budget.fold_evals_per_param * k
+    else:
+        m = int(math.ceil(math.log2(max(2, budget.scan_per_param * k))))
+        scan = qmc.Sobol(k, scramble=True, seed=seed).random_base2(m)
+        scores = [cost(u) for u in scan]
+        best = [scan[i] for i in np.argsort(scores)[: max(budget.starts - 1, 0)]]
+        starts = [u0] + [to_u(np.asarray(x, float)) for x in extra_starts] + best
+        maxfev = budget.evals_per_param * k
+    best_u, best_c = u0, math.inf
+    step = WARM_STEP if warm else COLD_STEP
+    for u in starts:
+        simplex = [u] + [np.clip(u + np.eye(k)[i] * (step if u[i] < 1 - step else -step), 0, 1) for i in range(k)]
+        r = optimize.minimize(cost, u, method="Nelder-Mead", bounds=[(0, 1)] * k,
+                              options={"maxfev": maxfev, "initial_simplex": np.array(simplex),
+                                       "xatol": XATOL, "fatol": FATOL_NOISE * max(sigma, 1e-12) ** 2})
+        if r.fun < best_c:
+            best_u, best_c = np.clip(r.x, 0, 1), float(r.fun)
+    return Fit(to_theta(best_u), best_c, nfev[0], len(starts))
+
+
+@dataclass
+class DynEvaluation:
+    """Calibration, cross-validation and bootstrap of one dynamics model on one table."""
+
+    bound: DynBound
+    fit: Fit
+    y: np.ndarray
+    sim: dict
+    cv_pred: np.ndarray
+    cv_sq: np.ndarray  # standardised held-out squared errors
+    groups: np.ndarray
+    folds: np.ndarray
+    sigma: float
+    cv_rmse: float
+    cv_rmse_se: float
+    bic: float
+    seconds: float
+    intervals: dict = field(default_factory=dict)
+
+    @property
+    def theta(self):
+        return self.fit.theta
+
+    @property
+    def k(self) -> int:
+        return len(self.bound.free)
+
+    @property
+    def pred(self):
+        return self.sim["pred"]
+
+    @property
+    def resid(self):
+        return self.y - self.sim["pred"]
+
+    @property
+    def rmse(self) -> float:
+        return float(np.sqrt(np.nanmean(self.resid ** 2)))
+
+    def plain_cv_rmse(self, mask=None) -> float:
+        """Held-out RMSE without the spread weighting (response unit), on ``mask`` rows."""
+        e = (self.y - self.cv_pred) ** 2
+        e = e if mask is None else e[mask]
+        return float(np.sqrt(np.nanmean(e))) if e.size else float("nan")
+
+
+def evaluate(bound: DynBound, sigma: float, folds, groups, x0=None, budget: Budget = Budget(), seed: int = 0,
+             bootstrap: int = 0, extra_starts: Sequence = ()) -> DynEvaluation:
+    """Return the calibration and grouped cross-validation (standardised errors) of ``bound``."""
+    t0 = time.perf_counter()
+    y = bound.observed()
+    fit = calibrate(bound, y, sigma, None, x0, budget, seed, extra_starts=extra_starts)
+    sim = bound.simulate(fit.theta)
+    cv_pred = np.empty_like(y)
+    cv_sq = np.empty_like(y)
+    for f in np.unique(folds):
+        test = np.flatnonzero(folds == f)
+        train = np.flatnonzero(folds != f)
+        if bound.free:
+            th = calibrate(bound, y, sigma, train, fit.theta, budget, seed, warm=True).theta
+            s = bound.simulate(th)
+        else:
+            s = sim
+        cv_pred[test] = s["pred"][test]
+        cv_sq[test] = _std_sq(y, s, sigma, test)
+    cv, se = crossval.cv_rmse(cv_sq, groups)
+    _, bic = information_criteria(float(np.sum(_std_sq(y, sim, sigma))), y.size, len(bound.free))
+    ev = DynEvaluation(bound, fit, y, sim, cv_pred, cv_sq, groups, folds, sigma, cv, se, bic,
+                       time.perf_counter() - t0)
+    if bootstrap and bound.free:
+        ev.intervals = bootstrap_intervals(ev, bootstrap, budget, seed)
+    return ev
+
+
+def bootstrap_intervals(ev: DynEvaluation, n: int, budget: Budget, seed: int) -> dict:
+    """Return {key: [lo, hi]}: 95 % percentile bootstrap over the cross-validation groups, each
+    resample refitted from the full fit (warm start, fold budget)."""
+    rng = np.random.default_rng(seed + 1)
+    ids = np.unique(ev.groups)
+    members = {g: np.flatnonzero(ev.groups == g) for g in ids}
+    draws = []
+    for _ in range(n):
+        pick = rng.choice(ids, ids.size, replace=True)
+        rows = np.concatenate([members[g] for g in pick])
+        draws.append(calibrate(ev.bound, ev.y, ev.sigma, rows, ev.theta, budget, seed, warm=True).theta)
+    D = np.array(draws)
+    return {s.key: [float(np.percentile(D[:, i], 2.5)), float(np.percentile(D[:, i], 97.5))]
+            for i, s in enumerate(ev.bound.free)}
+
+
+def noise_of(bound: DynBound) -> dict:
+    """Return the measurement-noise estimate of the table (residual_tests.noise_estimate).
+
+    progression: replicates (identical conditions) when present, else difference-based along the
+    covariates; trajectory: difference-based along time within each run (position noise).
+    """
+    resp = bound.response
+    df = bound.df
+    if bound.kind == "trajectory":
+        df = df[[c for c in ("run", "time_s", resp) if c in df.columns]]
+    return noise_estimate(df, resp)
+
+
+def param_table(ev: DynEvaluation) -> dict:
+    """Return ``{key: {value, free, unit, owner, ci95, at_bound, bounds}}``."""
+    vals = ev.bound.values(ev.theta)
+    free = {s.key for s in ev.bound.free}
+    out = {}
+    for s in ev.bound.model.specs:
+        rec = {"value": vals[s.key], "free": s.key in free, "unit": s.param.unit, "owner": s.owner}
+        if s.key in free:
+            lo, hi = s.bounds
+            v = vals[s.key]
+            rec.update(bounds=[lo, hi], ci95=ev.intervals.get(s.key),
+                       at_bound=bool(abs(v - lo) <= 1e-6 * (hi - lo) or abs(v - hi) <= 1e-6 * (hi - lo)))
+        out[s.key] = rec
+    return out
+
+
+# ---------------------------------------------------------------------------
+# residuals by regime and condition, in plain words
+
+
+def residual_frame(ev: DynEvaluation) -> pd.DataFrame:
+    """Return the comparison rows with observed, predicted, residuals, held-out, class and fold."""
+    df = ev.bound.row_frame()
+    base, u = ("velocity", "mm_s") if ev.bound.kind == "progression" else ("capsule", "mm")
+    resp = ev.bound.response
+    df = df.rename(columns={resp: f"observed_{base}_{u}"})
+    df[f"observed_{base}_{u}"] = ev.y
+    df[f"predicted_{base}_{u}"] = ev.pred
+    df[f"residual_{base}_{u}"] = ev.resid
+    df[f"cv_predicted_{base}_{u}"] = ev.cv_pred
+    df[f"cv_residual_{base}_{u}"] = ev.y - ev.cv_pred
+    df[f"model_spread_{base}_{u}"] = ev.sim["spread"]
+    df[f"standardised_residual"] = ev.resid / np.sqrt(ev.sigma ** 2 + np.nan_to_num(ev.sim["spread"]) ** 2)
+    df["response_class"] = ev.sim["cls"].astype(str)
+    df["fold"] = ev.folds.astype("int64")
+    df["cv_group"] = ev.groups.astype("int64")
+    return df
+
+
+def residual_schema(df: pd.DataFrame) -> TableSchema:
+    desc = {"fold": "cross-validation fold of the row", "cv_group": "group kept together in cross-validation",
+            "response_class": "model response class at the row's drive (no_impact, one_impact, multi_impact, "
+                              "irregular)",
+            "compared": "position (frames) or average_velocity (drift over whole periods, irregular run)",
+            "standardised_residual": "residual / sqrt(noise SD^2 + model spread^2)"}
+    cols = []
+    for c in df.columns:
+        if c in ("fold", "cv_group"):
+            dt = "int64"
+        elif pd.api.types.is_numeric_dtype(df[c]) and not pd.api.types.is_bool_dtype(df[c]):
+            dt = "float64"
+        else:
+            dt = "string"
+        cols.append(Column(c, dt, desc.get(c, "measurement or model column")))
+    return TableSchema("residuals", "dynamics model vs measurements per comparison row", tuple(cols))
+
+
+def by_class(ev: DynEvaluation) -> list[dict]:
+    """Return per response class: n, held-out RMSE (plain), standardised held-out RMS, mean residual."""
+    out = []
+    cls = ev.sim["cls"].astype(str)
+    for c in RESPONSE_CLASSES + ("failed",):
+        m = cls == c
+        if not m.any():
+            continue
+        out.append({"response_class": c, "n": int(m.sum()), "cv_rmse": ev.plain_cv_rmse(m),
+                    "cv_rms_standardised": float(np.sqrt(np.mean(ev.cv_sq[m]))),
+                    "mean_residual": float(np.nanmean(ev.resid[m]))})
+    return out
+
+
+def regime_of(ev: DynEvaluation, sigma: float) -> str | None:
+    """Return the response class where the held-out misfit concentrates (largest excess standardised
+    squared error over sigma^2), or None when no class exceeds twice the noise variance."""
+    cls = ev.sim["cls"].astype(str)
+    best, score = None, 0.0
+    for c in RESPONSE_CLASSES:
+        m = cls == c
+        if m.sum() < 2:
+            continue
+        ex = float(np.mean(ev.cv_sq[m]))
+        if ex > 2 * sigma ** 2 and ex * m.sum() > score:
+            best, score = c, ex * m.sum()
+    return best
+
+
+_CLASS_WORDS = {"no_impact": "the shell is not hit", "one_impact": "the magnet hits the constraint at most once "
+                "per period", "multi_impact": "it hits more than once per period", "irregular": "the response is "
+                "irregular (no period up to 8)"}
+
+
+def plain_summary(ev: DynEvaluation, sigma: float) -> str:
+    """Return where the model fails by regime and drive condition, in plain words."""
+    unit = UNIT[ev.bound.kind]
+    rf = ev.bound.row_frame()
+    z = ev.resid / np.sqrt(sigma ** 2 + np.nan_to_num(ev.sim["spread"]) ** 2) if sigma > 0 else ev.resid
+    cls = ev.sim["cls"].astype(str)
+    parts = []
+    for c in RESPONSE_CLASSES:
+        m = cls == c
+        if not m.any():
+            continue
+        bad = m & (np.abs(z) > 2)
+        if bad.sum() < max(2, 0.5 * m.sum()):
+            continue
+        sub = rf[bad]
+        mean_r = float(np.nanmean(ev.resid[bad]))
+        word = "lower" if mean_r > 0 else "higher"
+        what = "velocity" if ev.bound.kind == "progression" else "position"
+        where = (f"f {sub['f_Hz'].min():g}-{sub['f_Hz'].max():g} Hz, P_d {sub['Pd_N'].min():g}-"
+                 f"{sub['Pd_N'].max():g} N") if {"f_Hz", "Pd_N"} <= set(sub.columns) else ""
+        parts.append(f"the model's {what} is {word} than measured (by {abs(mean_r):.3g} {unit} on average) in "
+                     f"{int(bad.sum())} of {int(m.sum())} rows where {_CLASS_WORDS[c]} ({where})")
+    if not parts:
+        return "the model is within about 2 noise SDs of the data in every response regime"
+    return "; ".join(parts)
+
+
+# ---------------------------------------------------------------------------
+# the verdict (pure): the quasi-static rule on standardised held-out errors
+
+
+def dynamics_verdict(base: DynEvaluation, cands: Sequence[dict], sigma: float, noise_reliable: bool,
+                     struct: list[dict], struct_after: Mapping[str, list[dict]], rule=None) -> dict:
+    """Return the verdict {missing_effect, covariate, regime, message, winner} for dynamics data.
+
+    ``cands``: dicts {effect: Effect, ev: DynEvaluation} (candidate models). The rule is that of
+    :mod:`.diagnose` (its constants), applied to standardised held-out squared errors so the
+    spread of irregular responses enters the error model; ``rule`` may replace it:
+    rule(base_cv, base_cv_se, cand_records, sigma, reliable) -> list of bools (passes).
+    """
+    from .diagnose import ALPHA, BIC_THRESHOLD, MIN_GAIN_NOISE_FRACTION, SE_MULTIPLE
+
+    unit = UNIT[base.bound.kind]
+    for c in cands:
+        d, se = crossval.paired_difference(base.cv_sq, c["ev"].cv_sq, base.groups)
+        c["delta_cv"], c["delta_cv_se"], c["delta_bic"] = d, se, c["ev"].bic - base.bic
+        need = max(SE_MULTIPLE * (se if np.isfinite(se) else np.inf), MIN_GAIN_NOISE_FRACTION * sigma)
+        why = []
+        if not d > need:
+            why.append(f"held-out gain {d:.3g} <= {need:.3g} {unit}")
+        if not c["delta_bic"] < BIC_THRESHOLD:
+            why.append(f"dBIC {c['delta_bic']:.1f} >= {BIC_THRESHOLD:g}")
+        if noise_reliable and not base.cv_rmse > sigma:
+            why.append("the model's held-out error is already at the noise level")
+        c["passes"], c["reason"] = not why, ("passes" if not why else "; ".join(why))
+    if rule is not None:
+        for c, ok in zip(cands, rule(base.cv_rmse, base.cv_rmse_se, cands, sigma, noise_reliable)):
+            c["passes"] = bool(ok)
+    ranked = sorted(cands, key=lambda c: c["ev"].cv_rmse)
+    passing = [c for c in ranked if c["passes"]]
+    winner = None
+    if passing:
+        best = passing[0]
+        near = [c for c in passing if c is best or c["ev"].cv_rmse - best["ev"].cv_rmse
+                <= crossval.paired_difference(c["ev"].cv_sq, best["ev"].cv_sq, base.groups)[1]]
+        winner = min(near, key=lambda c: (c["ev"].k, c["ev"].cv_rmse))
+    sig = sorted([s for s in struct if s["p_adjusted"] < ALPHA], key=lambda s: s["p_value"])
+    regime = regime_of(base, sigma)
+    where = plain_summary(base, sigma)
+    v = {"missing_effect": None, "covariate": sig[0]["covariate"] if sig else None, "regime": regime,
+         "message": "", "winner": None, "where": where}
+    if winner is not None:
+        left = [s for s in struct_after.get(winner["effect"].name, []) if s["p_adjusted"] < ALPHA]
+        v.update(missing_effect=winner["effect"].name, winner=winner["effect"].name)
+        rf = base.bound.row_frame()
+        own = [c for c in winner["effect"].covariates if c in rf.columns and rf[c].nunique() >= 2]
+        if own:  # the winner's own covariate, as in the quasi-static verdict
+            v["covariate"] = min(own, key=lambda c: min((s["p_value"] for s in struct if s["covariate"] == c),
+                                                        default=1.0))
+        v["message"] = (f"adding {winner['effect'].name} cuts the held-out error from {base.cv_rmse:.3g} to "
+                        f"{winner['ev'].cv_rmse:.3g} {unit} (noise {sigma:.3g} {unit}; dBIC "
+                        f"{winner['delta_bic']:.0f}). Where the model as is fails: {where}")
+        if left:
+            v["message"] += (f". Structure remains against {left[0]['covariate']} ({left[0]['test']}, "
+                             f"p = {left[0]['p_value']:.2g}): after adding it, run diagnose again")
+    elif sig:
+        v["message"] = (f"an effect not built in depends on {sig[0]['covariate']}"
+                        + (f" and shows in the {regime} regime" if regime else "")
+                        + f": write a plugin ({sig[0]['test']} p = {sig[0]['p_value']:.2g}; no candidate passes "
+                          f"the rule). Where the model fails: {where}")
+    elif regime is not None:
+        v["message"] = (f"an effect not built in shows in the {regime} regime: write a plugin (no candidate passes "
+                        f"the rule and no covariate trend is significant). Where the model fails: {where}")
+    elif not noise_reliable:
+        v["message"] = ("the data cannot tell: no candidate passes the rule, and without replicates the noise level "
+                        "cannot be estimated, so the data cannot show whether anything is missing")
+    else:
+        v["message"] = (f"nothing is missing: the model explains the data to the noise level "
+                        f"(held-out {base.cv_rmse:.3g} {unit}, noise {sigma:.3g} {unit})")
+    return v
+
+
+# ---------------------------------------------------------------------------
+# compare and diagnose
+
+
+def _setup(model: Model, df: pd.DataFrame, data_path: str, k_folds: int, seed: int, budget: Budget):
+    bound = DynBound(model, df, where=str(data_path))
+    noise = noise_of(bound)
+    sigma = float(noise["sd"]) if noise["sd"] and np.isfinite(noise["sd"]) and noise["sd"] > 0 else 1.0
+    if bound.kind == "trajectory":
+        # first pass in position mode, then irregular runs by average velocity (the mode stays fixed)
+        pre = calibrate(bound, bound.observed(), sigma, None, None, budget, seed)
+        bound = DynBound(model, df, where=str(data_path), modes=choose_modes(bound, pre.theta))
+    groups, how = bound.groups()
+    folds = crossval.assign_folds(groups, k_folds, seed)
+    return bound, noise, sigma, groups, how, folds
+
+
+def _metrics(ev: DynEvaluation, noise: dict, data_path: str, dhash: str, k_folds: int, how: str,
+             budget: Budget) -> dict:
+    m = ev.bound.model
+    cls = ev.sim["cls"].astype(str)
+    regular = cls != "irregular"
+    rec = {
+        "model": m.name, "model_file": m.path, "model_hash": m.hash, "kind": m.kind, "base": m.base.name,
+        "effects": m.effect_names, "data": str(data_path), "data_hash": dhash,
+        "response": ev.bound.response, "unit": UNIT[m.kind], "n": int(ev.y.size), "n_free": ev.k,
+        "rmse": ev.rmse, "mae": float(np.nanmean(np.abs(ev.resid))), "bias": float(np.nanmean(-ev.resid)),
+        "r2": float(1 - np.nansum(ev.resid ** 2) / np.sum((ev.y - ev.y.mean()) ** 2)) if np.ptp(ev.y) > 0 else None,
+        "cv_rmse": ev.cv_rmse, "cv_rmse_se": ev.cv_rmse_se,
+        "cv_rmse_meaning": "held-out RMS of residuals standardised by the error model (noise and the spread of "
+                           "irregular responses), in the response unit",
+        "cv_rmse_plain": ev.plain_cv_rmse(), "cv_rmse_not_irregular": ev.plain_cv_rmse(regular),
+        "cv": {"folds": int(np.unique(ev.folds).size), "requested_folds": k_folds, "groups": how,
+               "n_groups": int(np.unique(ev.groups).size)},
+        "noise_sd": noise["sd"], "noise_sd_se": noise["se"], "noise_method": noise["method"],
+        "cv_rmse_over_noise": ev.cv_rmse / noise["sd"] if noise["sd"] else None,
+        "bic": ev.bic, "params": param_table(ev),
+        "intervals": ("95 % percentile bootstrap over cross-validation groups, "
+                      f"{budget.bootstrap} resamples, each refitted warm-started" if ev.intervals else
+                      "none (no free parameter or bootstrap off)"),
+        "protocol": ev.bound.protocol.__dict__,
+        "by_response_class": by_class(ev),
+        "calibration": {"method": "Sobol scan + bounded Nelder-Mead (derivative-free, scaled to [0, 1])",
+                        "starts": ev.fit.starts, "evaluations": ev.fit.nfev, "seconds": ev.seconds},
+    }
+    if ev.bound.kind == "trajectory":
+        rec["runs_compared_by"] = {r: mode for r, mode in ev.bound.modes.items()}
+    return rec
+
+
+def _prov(model, seed, df, data_path, dh):
+    return provenance(config_hash=model.hash, seed=seed, data_synthetic=is_synthetic(df), model=model.content,
+                      data=str(data_path), data_hash=dh)
+
+
+def run_compare(model: Model, df: pd.DataFrame, data_path: str, out_dir, ledger=None, k_folds: int = 5,
+                seed: int = 0, figures: bool = True, budget: Budget = Budget()) -> dict:
+    """Calibrate a dynamics model, cross-validate, bootstrap intervals; write metrics, residuals, ledger row."""
+    from .compare import data_hash
+    from .ledger import append_ledger
+
+    out = Path(out_dir)
+    bound, noise, sigma, groups, how, folds = _setup(model, df, data_path, k_folds, seed, budget)
+    ev = evaluate(bound, sigma, folds, groups, budget=budget, seed=seed, bootstrap=budget.bootstrap)
+    dh = data_hash(data_path)
+    met = _metrics(ev, noise, data_path, dh, k_folds, how, budget)
+    met["where_it_fails"] = plain_summary(ev, sigma)
+    res = residual_frame(ev)
+    out.mkdir(parents=True, exist_ok=True)
+    write_table(res, out / "residuals.parquet", residual_schema(res), _prov(model, seed, df, data_path, dh))
+    met["figures"] = []
+    if figures:
+        _plot_residuals(res, ev, out / "residuals.png", f"{model.name}: residuals by condition and class")
+        met["figures"] = ["residuals.png"]
+    write_json_atomic(out / "metrics.json", met)
+    if ledger is not None:
+        append_ledger(ledger, met)
+    return met
+
+
+def fit_candidate(model: Model, eff: Effect, df, base: DynEvaluation, data_path, budget: Budget, seed: int):
+    """Return {effect, model, ev} of model + eff (starts: the base fit with the effect at its declared
+    start values, the same with the effect off, then the scan)."""
+    vals = base.bound.values(base.theta)
+    m2 = model.with_values(vals).with_effect(eff)
+    b2 = DynBound(m2, df, where=str(data_path), modes=getattr(base.bound, "modes", None))
+    off = m2.with_values({s.key: s.param.off for s in m2.specs if s.owner == eff.name})
+    x_off = [s.value for s in off.specs if s.free]
+    ev = evaluate(b2, base.sigma, base.folds, base.groups, x0=b2.x0, budget=budget, seed=seed,
+                  extra_starts=[x_off])
+    return {"effect": eff, "model": m2, "ev": ev}
+
+
+def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_model=None, k_folds: int = 5,
+                 seed: int = 0, add_best: bool = False, quiet: bool = True, figures: bool = True,
+                 budget: Budget = Budget()) -> dict:
+    """Diagnose a dynamics model: candidates, verdict (with regime), diagnosis.json/.md, --write-model."""
+    from ..progress import track
+    from .compare import data_hash
+    from .diagnose import RULE_TEXT, applicable_effects
+
+    t0 = time.perf_counter()
+    out = Path(out_dir)
+    bound, noise, sigma, groups, how, folds = _setup(model, df, data_path, k_folds, seed, budget)
+    reliable = bool(noise.get("reliable", True))
+    base = evaluate(bound, sigma, folds, groups, budget=budget, seed=seed)
+    rf = bound.row_frame()
+    covs = [c for c in ("f_Hz", "Pd_N", "duty", "time_s") if c in rf.columns and rf[c].nunique() >= 2]
+    z = lambda ev: ev.resid / np.sqrt(sigma ** 2 + np.nan_to_num(ev.sim["spread"]) ** 2)  # noqa: E731
+    struct = structure_tests(rf, np.nan_to_num(z(base)), covs)
+    cands, skipped = [], []
+    for eff in track(applicable_effects(model, df), "trying candidate effects", quiet=quiet):
+        try:
+            cands.append(fit_candidate(model, eff, df, base, data_path, budget, seed))
+        except NotImplementedError as exc:
+            skipped.append({"effect": eff.name, "reason": str(exc)})
+    after = {c["effect"].name: structure_tests(rf, np.nan_to_num(z(c["ev"])), covs) for c in cands}
+    verdict = dynamics_verdict(base, cands, sigma, reliable, struct, after)
+    cands.sort(key=lambda c: c["ev"].cv_rmse)
+    dh = data_hash(data_path)
+
+    def rec(c):
+        pt = param_table(c["ev"])
+        return {"effect": c["effect"].name, "origin": c["effect"].origin, "cv_rmse": c["ev"].cv_rmse,
+                "cv_rmse_se": c["ev"].cv_rmse_se, "cv_rmse_not_irregular":
+                    c["ev"].plain_cv_rmse(c["ev"].sim["cls"].astype(str) != "irregular"),
+                "delta_cv_rmse": -c["delta_cv"], "delta_cv_rmse_se": c["delta_cv_se"], "delta_bic": c["delta_bic"],
+                "rmse": c["ev"].rmse, "n_free": c["ev"].k, "passes": c["passes"], "reason": c["reason"], "seconds": c["ev"].seconds,
+                "params": {k: v for k, v in pt.items() if v["owner"] == c["effect"].name}}
+
+    result = {
+        "model": model.name, "model_file": model.path, "model_hash": model.hash, "kind": model.kind,
+        "base": model.base.name, "effects": model.effect_names, "data": str(data_path), "data_hash": dh,
+        "n": int(base.y.size), "unit": UNIT[model.kind], "protocol": bound.protocol.__dict__,
+        "noise": {"sd": noise["sd"], "se": noise["se"], "method": noise["method"], "reliable": reliable},
+        "model_as_is": {"cv_rmse": base.cv_rmse, "cv_rmse_se": base.cv_rmse_se, "rmse": base.rmse,
+                        "bic": base.bic, "n_free": base.k, "params": param_table(base),
+                        "by_response_class": by_class(base)},
+        "cv": {"folds": int(np.unique(folds).size), "groups": how},
+        "candidates": [rec(c) for c in cands], "skipped_candidates": skipped,
+        "residual_structure": struct,
+        "verdict": {k: verdict[k] for k in ("missing_effect", "covariate", "regime", "message")},
+        "where_it_fails": verdict["where"],
+        "rule": RULE_TEXT + " Dynamics: errors standardised by noise and the spread of irregular responses.",
+        "budget": {**budget.__dict__, "seconds": time.perf_counter() - t0},
+    }
+    if bound.kind == "trajectory":
+        result["runs_compared_by"] = dict(bound.modes)
+    out.mkdir(parents=True, exist_ok=True)
+    res = residual_frame(base)
+    write_table(res, out / "residuals.parquet", residual_schema(res), _prov(model, seed, df, data_path, dh))
+    result["figures"] = []
+    if figures:
+        _plot_residuals(res, base, out / "residuals.png", f"{model.name}: residuals by condition and class")
+        result["figures"].append("residuals.png")
+    if write_model is not None:
+        named = next((c for c in cands if c["effect"].name == verdict["missing_effect"]), None)
+        chosen = named or (cands[0] if (add_best and cands) else None)
+        _write_model(model, chosen, Path(write_model), data_path, verdict, named is not None)
+        result["written_model"] = str(write_model)
+    write_json_atomic(out / "diagnosis.json", result)
+    write_text_atomic(out / "diagnosis.md", diagnosis_markdown(result))
+    return result
+
+
+def _write_model(model: Model, chosen, path: Path, data_path, verdict, named: bool) -> Path:
+    import yaml
+
+    if chosen is None:
+        doc = model.to_yaml_dict(name=model.name, notes="diagnose named no missing effect; model unchanged")
+        header = f"# written by capsule-cli diagnose from {model.path} on {data_path}\n# nothing was added.\n"
+    else:
+        ev = chosen["ev"]
+        how = "the verdict's missing effect" if named else "the best-ranked candidate (NOT named by the verdict)"
+        doc = chosen["model"].to_yaml_dict(values=ev.bound.values(ev.theta),
+                                           name=f"{model.name}+{chosen['effect'].name}",
+                                           notes=f"{chosen['effect'].name} added by diagnose ({how}) on {data_path}")
+        header = (f"# written by capsule-cli diagnose from {model.path} on {data_path}\n"
+                  f"# added: {chosen['effect'].name} ({how}); calibrated values as free start values\n")
+    write_text_atomic(path, header + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=110))
+    return path
+
+
+def diagnosis_markdown(r: dict) -> str:
+    """Return diagnosis.md for dynamics data: verdict, regimes, candidates, rule."""
+    u, v = r["unit"], r["verdict"]
+    msg = v["message"]
+    lines = [f"# Diagnosis: {r['model']} on {Path(r['data']).name}", "",
+             f"**Verdict.** {msg[0].upper() + msg[1:]}.", "",
+             f"- Regime where the misfit concentrates: {v['regime'] or 'none'}; covariate: {v['covariate'] or 'none'}.",
+             f"- Protocol: {r['protocol']}.",
+             f"- Noise: {r['noise']['sd']:.3g} {u} ({r['noise']['method']}).",
+             f"- Model as is: held-out {r['model_as_is']['cv_rmse']:.3g} ± {r['model_as_is']['cv_rmse_se']:.2g} {u} "
+             f"(standardised by the error model), {r['cv']['folds']} folds {r['cv']['groups']}.", "",
+             "## By response class (model as is)", "", f"| class | n | held-out RMSE [{u}] | mean residual [{u}] |",
+             "| --- | --- | --- | --- |"]
+    for c in r["model_as_is"]["by_response_class"]:
+        lines.append(f"| {c['response_class']} | {c['n']} | {c['cv_rmse']:.3g} | {c['mean_residual']:.3g} |")
+    lines += ["", f"Where it fails: {r['where_it_fails']}.", "", "## Candidates, best first", "",
+              f"| effect | held-out [{u}] | change [{u}] | dBIC | free | rule |", "| --- | --- | --- | --- | --- | --- |"]
+    for c in r["candidates"]:
+        lines.append(f"| {c['effect']} | {c['cv_rmse']:.3g} | {c['delta_cv_rmse']:.3g} ± {c['delta_cv_rmse_se']:.2g} | "
+                     f"{c['delta_bic']:.1f} | {c['n_free']} | {c['reason']} |")
+    for s in r["skipped_candidates"]:
+        lines.append(f"| {s['effect']} | not tried: {s['reason']} | | | | |")
+    if r.get("written_model"):
+        lines += ["", "## Next step", "", f"`capsule-cli compare --model {r['written_model']} --data {r['data']} "
+                  "--out DIR`"]
+    lines += ["", "## The rule (fixed before looking at the data)", "", r["rule"], ""]
+    return "\n".join(lines)
+
+
+def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..tables import atomic_path
+
+    col = [c for c in res.columns if c.startswith("residual_")][0]
+    xcol = "f_Hz" if ev.bound.kind == "progression" else "time_s"
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for c in RESPONSE_CLASSES + ("failed",):
+        m = res["response_class"] == c
+        if m.any():
+            ax.plot(res.loc[m, xcol], res.loc[m, col], "o", ms=4, label=c)
+    ax.axhspan(-ev.sigma, ev.sigma, color="0.85", zorder=0, label="±noise SD")
+    ax.set_xlabel(xcol.replace("_Hz", " [Hz]").replace("_s", " [s]"))
+    ax.set_ylabel(f"residual [{UNIT[ev.bound.kind]}]")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format=path.suffix.lstrip("."), dpi=120)
+    plt.close(fig)
+
+
+# ---------------------------------------------------------------------------
+# synth
+
+
+def synthesize_progression(model: Model, design: pd.DataFrame, noise_sd: float, replicates: int,
+                           seed: int) -> pd.DataFrame:
+    """Return synthetic progression speeds: design conditions x replicates + Gaussian noise [mm/s].
+
+    Replicate k records periods transient + k * recorded .. (a later window of the same run), so
+    irregular responses show their natural spread between replicates.
+    """
+    if replicates < 1:
+        raise InputError(f"--replicates must be >= 1, got {replicates}")
+    bound = DynBound(model, design.assign(velocity_mm_s=0.0), where="design")
+    rng = np.random.default_rng(seed)
+    base_p = bound.protocol
+    parts = []
+    for k in range(replicates):
+        bound.protocol = dsys.Protocol(base_p.start, base_p.transient_periods + k * base_p.recorded_periods,
+                                       base_p.recorded_periods)
+        sim = bound.simulate(None)
+        if not np.all(np.isfinite(sim["pred"])):
+            i = int(np.argmax(~np.isfinite(sim["pred"])))
+            raise InputError(f"design row {i + 1}: the model cannot be run there")
+        d = design.copy()
+        d["velocity_mm_s"] = sim["pred"] + noise_sd * rng.standard_normal(len(d))
+        parts.append(d)
+    return pd.concat(parts, ignore_index=True)
+
+
+def synthesize_trajectory(model: Model, design: pd.DataFrame, noise_sd: float, frame_rate_Hz: float,
+                          seed: int) -> pd.DataFrame:
+    """Return synthetic camera records: per design run (run, f_Hz, Pd_N, duration_s[, duty, waveform])
+    frames at ``frame_rate_Hz`` from t = 0 (rest, drive phase 0), positions + Gaussian noise [mm]."""
+    if not frame_rate_Hz > 0:
+        raise InputError(f"--frame-rate-Hz must be > 0, got {frame_rate_Hz}")
+    for c in ("run", "f_Hz", "Pd_N", "duration_s"):
+        if c not in design.columns:
+            raise InputError(f"design: missing column '{c}' (a trajectory design has run, f_Hz, Pd_N, duration_s)")
+    rng = np.random.default_rng(seed)
+    vals = {s.key: s.value for s in model.specs}
+    sysm = dsys.build_system(model.base.name, {s.param.name: vals[s.key] for s in model.specs}, model.effect_names)
+    parts = []
+    for _, row in design.iterrows():
+        t = np.arange(0.0, float(row["duration_s"]) + 1e-12, 1.0 / frame_rate_Hz)
+        duty = float(row["duty"]) if "duty" in design.columns else None
+        wf = str(row["waveform"]) if "waveform" in design.columns else "harmonic"
+        tr = dsys.trajectory(sysm, float(row["f_Hz"]), float(row["Pd_N"]), t, duty=duty, waveform=wf)
+        d = pd.DataFrame({"run": str(row["run"]), "f_Hz": float(row["f_Hz"]), "Pd_N": float(row["Pd_N"]),
+                          "time_s": t})
+        if "duty" in design.columns:
+            d["duty"] = duty
+        if "waveform" in design.columns:
+            d["waveform"] = wf
+        d["magnet_mm"] = tr["magnet_mm"] + noise_sd * rng.standard_normal(t.size)
+        d["capsule_mm"] = tr["capsule_mm"] + noise_sd * rng.standard_normal(t.size)
+        parts.append(d)
+    return pd.concat(parts, ignore_index=True)
+
+
+def write_synthetic(df: pd.DataFrame, path, prov: dict):
+    """Write the synthetic table (CSV + provenance sidecar, or Parquet), labelled synthetic."""
+    return write_measurements(df, Path(path), prov)
