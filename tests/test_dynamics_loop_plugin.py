@@ -17,11 +17,12 @@ from capsule_cli.steps import dynamics_loop as DL
 
 from test_dynamics_loop import BUDGET, DESIGN, NOISE, PROTO
 
+# minutes of engine time on the opened engine: run by `make test-slow`, not by CI's `make test`
+pytestmark = pytest.mark.slow
+
 PLUGIN = '''
 from capsule_cli.effects import Param, register_effect
 
-# minutes of engine time on the opened engine: run by `make test-slow`, not by CI's `make test`
-pytestmark = pytest.mark.slow
 
 
 @register_effect(

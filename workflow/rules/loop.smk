@@ -237,7 +237,7 @@ rule loop_dynamics_ledger_plot:
         base=f"{LOOP_DIR}/dyn_{{dkind}}/ledger_as_is.parquet",
         improved=f"{LOOP_DIR}/dyn_{{dkind}}/ledger_with_effect.parquet",
     output:
-        fig=f"{LOOP_DIR}/dyn_{{dkind}}/error_ledger.png",
+        fig=captioned(f"{LOOP_DIR}/dyn_{{dkind}}/error_ledger.png", "loop_ledger", CAT_LOOP, "Error falling (ledgers)"),
     log:
         f"{LOOP_DIR}/dyn_{{dkind}}/logs/ledger_plot.log",
     shell:
