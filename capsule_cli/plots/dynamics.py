@@ -97,9 +97,9 @@ def magnify_figure(df: pd.DataFrame, title: str, path: str | Path, scale: str = 
     key = "friction" if "friction" in df.columns else "Pf_N"
     levels = list(dict.fromkeys(df[key].tolist()))
     n = len(levels)
-    ncols = min(4, n)
+    ncols = min(3, n)  # three panels a row keep two-line titles apart at page width
     nrows = int(math.ceil(n / ncols))
-    fig, axes = figure(ncols=ncols, nrows=nrows, width="page", height_in=2.3 * nrows, squeeze=False)
+    fig, axes = figure(ncols=ncols, nrows=nrows, width="page", height_in=2.5 * nrows, squeeze=False)
     vmax = float(np.nanmax(df["Af"]))
     mesh = None
     for k, lev in enumerate(levels):
@@ -119,7 +119,7 @@ def magnify_figure(df: pd.DataFrame, title: str, path: str | Path, scale: str = 
             name = FRICTION_TEXT.get(str(lev), f"$P_f$ = {lev} N")
         else:
             name = "$P_f$ = ∞ N" if math.isinf(lev) else f"$P_f$ = {lev:g} N"
-        ax.set_title(f"{name}\npeak $A_f$ = {top:.0f} at {f[j]:.3g} Hz, {p[i]:.3g} N", fontsize=7)
+        ax.set_title(f"{name}\npeak {top:.0f} at {f[j]:.3g} Hz, {p[i]:.3g} N", fontsize=7)
         ax.set_xlabel(label("drive frequency f", "Hz"))
         ax.set_ylabel(label("drive amplitude $P_d$", "N"))
         ax.grid(False)
