@@ -271,6 +271,7 @@ def run_diagnose(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_
     verdict = result["verdict"]
     dh = data_hash(data_path)
     result["data_hash"] = dh
+    result["data_synthetic"] = bool(is_synthetic(df))
     out = Path(out_dir)
     # tables and figures
     out.mkdir(parents=True, exist_ok=True)
@@ -341,6 +342,10 @@ def diagnosis_markdown(r: dict, cands: list[Candidate], base: Evaluation, winner
     u = r["unit"]
     v = r["verdict"]
     lines = [f"# Diagnosis: {r['model']} on {Path(r['data']).name}", ""]
+    lines += ["What this is: `capsule-cli diagnose` compared the model with the measurements, fitted every "
+              "applicable effect not yet in the model, tested the residuals and applied the rule printed at the "
+              "end. Every number below comes from `diagnosis.json` beside this file"
+              + (" (the data are synthetic: made by `capsule-cli synth`)." if r.get("data_synthetic") else "."), ""]
     lines += [f"**Verdict.** {v['message'][0].upper() + v['message'][1:]}.", ""]
     lines += [f"- Data: {r['n']} measurements ({r['data']}); held-out error by {r['cv']['folds']}-fold "
               f"cross-validation with groups {r['cv']['groups']}.",
