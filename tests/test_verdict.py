@@ -125,3 +125,39 @@ def test_partial_step_when_the_winner_removes_most_of_the_error():
     poor = fit("viscous", y, base.pred + 0.08 * (y - base.pred), 2, ("speed_mm_s",), 1.1, structure=left)
     v2 = decide_verdict(y, base, [poor], NOISE, {"speed_mm_s": X}, [], GROUPS, 5, alpha_effect=1.0)
     assert v2.outcome == "not_built_in" and v2.covariate == "speed_mm_s" and v2.closest == "viscous"
+
+
+def test_vuong_test_sign_and_level():
+    from capsule_cli.steps.verdict import vuong_test
+
+    y = 8 + 2 * np.sqrt(X) + RNG.standard_normal(N)
+    good, bad = y - (8 + 2 * np.sqrt(X)), y - y.mean()
+    z, p = vuong_test(good, 3, bad, 1)
+    # by hand: pointwise Gaussian log-likelihoods, AIC-corrected sum over sqrt(n) times their SD
+    sa, sb = good @ good / N, bad @ bad / N
+    d = (-0.5 * np.log(sa) - good ** 2 / (2 * sa)) - (-0.5 * np.log(sb) - bad ** 2 / (2 * sb))
+    assert z == pytest.approx((d.sum() - 2) / (np.sqrt(N) * d.std()))
+    assert z > 0 and p == pytest.approx(2 * stats.norm.sf(z)) and p < 0.05
+    assert vuong_test(bad, 1, good, 3)[0] == pytest.approx(-z)
+    assert vuong_test(good, 3, good.copy(), 3) == (0.0, 1.0)  # identical fits: the data cannot tell them apart
+
+
+def test_two_candidates_the_data_cannot_separate_are_named_together():
+    y = 8 + 4 * X ** 0.25 + np.random.default_rng(2).standard_normal(N) * 0.2
+    base = fit("", y, np.full(N, y.mean()), 1, sq_scale=1.1)
+    pw = np.polyfit(X ** 0.25, y, 1)
+    vs = np.polyfit(X, y, 1)
+    power = fit("speed_power_law", y, np.polyval(pw, X ** 0.25), 3, ("speed_mm_s",), 1.1)
+    visc = fit("viscous", y, np.polyval(vs, X), 2, ("speed_mm_s",), 1.1)
+    # noisier data: the two fits differ by less than the noise can tell (Vuong p ~ 0.9)
+    y2 = 8 + 4 * X ** 0.25 + np.random.default_rng(1).standard_normal(N)
+    b2 = fit("", y2, np.full(N, y2.mean()), 1, sq_scale=1.1)
+    p2 = fit("speed_power_law", y2, np.polyval(np.polyfit(X ** 0.25, y2, 1), X ** 0.25), 3, ("speed_mm_s",), 1.1)
+    v2 = fit("viscous", y2, np.polyval(np.polyfit(X, y2, 1), X), 2, ("speed_mm_s",), 1.1)
+    v = decide_verdict(y2, b2, [p2, v2], NOISE, {"speed_mm_s": X}, [], GROUPS, 5)
+    assert v.outcome == "missing_effect" and {v.missing_effect, *v.alternatives} == {"speed_power_law", "viscous"}
+    assert "not separable by these data" in v.message and "speed_mm_s" in v.message
+    # precise data: the power law separates from the straight line and is named alone
+    v = decide_verdict(y, base, [visc, power], Noise(0.2, 0.03), {"speed_mm_s": X}, [], GROUPS, 5)
+    assert v.missing_effect == "speed_power_law" and v.alternatives == []
+    assert "not separable" not in v.message and v.as_dict()["alternatives"] == []

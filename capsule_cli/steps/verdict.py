@@ -28,9 +28,13 @@ The rule (fixed in advance, printed in every report, :data:`RULE_TEXT`):
   Regression, section 5.3) has p < ALPHA_EFFECT / m (Bonferroni over the m
   candidates tried) and its held-out mean squared error is lower than the
   model's (it predicts unseen rows better, not only the fitted ones);
-* of supported candidates the one with the lowest AICc (Hurvich & Tsai 1989) is
-  taken, those with an own parameter at its bound last; others within CLOSE_AICC
-  are named as near-equal alternatives;
+* supported candidates are ranked by AICc (penalised fit; Hurvich & Tsai 1989),
+  those with an own parameter at its bound last; the first is compared directly
+  with every other supported one by Vuong's (1989) test of the two fits, which
+  holds for nested and non-nested pairs alike: one the data prefer at two-sided
+  p < ALPHA_SEPARATE is named instead, and those the data cannot tell from the
+  one named are listed in ``Verdict.alternatives`` and the message ("not
+  separable by these data", with where measurements would separate them);
 * with none supported, residual structure (tests of
   :mod:`.residual_tests`, Bonferroni over all tests, family ALPHA_STRUCTURE)
   names a covariate;
@@ -59,8 +63,11 @@ ALPHA_STRUCTURE = 0.01
 COLLINEAR_R = 0.95
 #: share of the excess held-out MSE (above the noise) a winner must remove to be named as a partial step
 PARTIAL_SHARE = 0.5
-#: supported candidates within this many AICc units of the winner are named as near-equal alternatives
+#: kept for backward compatibility (the verdict now separates candidates by a direct test, ALPHA_SEPARATE)
 CLOSE_AICC = 2.0
+#: two-sided level of the direct comparison of two supported candidates (Vuong's test): below it the data
+#: separate them and the better one is named; above it both are named as not separable by these data
+ALPHA_SEPARATE = 0.05
 #: power wanted when estimating how many measurements would settle a "cannot tell"
 TARGET_POWER = 0.8
 #: held-out error above noise * sqrt(inflation) by more than this many standard errors contradicts "nothing missing"
@@ -69,8 +76,11 @@ EXCESS_Z = 2.0
 RULE_TEXT = (
     "A candidate effect is named only if its nested F test against the model as is has p < "
     f"{ALPHA_EFFECT:g}/m (Bonferroni over the m candidates tried) and it lowers the held-out (cross-validated) "
-    f"mean squared error; among those the lowest AICc wins (others within {CLOSE_AICC:g} are named as "
-    "near-equal alternatives; candidates with a parameter at its bound only if no other passes). If structure remains "
+    "mean squared error; among those the lowest AICc (penalised fit) ranks first (candidates with a parameter at "
+    "its bound only if no other passes), and it is compared directly with every other one that passes (Vuong's "
+    "test of the two fits, AIC-corrected): one the data prefer at two-sided p < "
+    f"{ALPHA_SEPARATE:g} is named instead, and the others the data cannot tell from the one named are named with "
+    "it as \"not separable by these data\". If structure remains "
     "against the winner's own covariate it is named as a partial step when it removes at least "
     f"{100 * PARTIAL_SHARE:g} % of the held-out error above the noise and what remains is not periodic; otherwise "
     "its form does not fit and the covariate is named (an effect that is not built in, with its period). "
@@ -144,6 +154,9 @@ class Verdict:
     message: str
     partial: bool = False
     confounded: list[str] = field(default_factory=list)
+    #: other supported candidates these data cannot tell from ``missing_effect`` (Vuong test p >= ALPHA_SEPARATE),
+    #: best (lowest AICc) first
+    alternatives: list[str] = field(default_factory=list)
     closest: str | None = None
     more_measurements: int | None = None
     where: dict | None = None
@@ -153,7 +166,7 @@ class Verdict:
     def as_dict(self) -> dict:
         return {"outcome": self.outcome, "missing_effect": self.missing_effect, "covariate": self.covariate,
                 "period": self.period, "message": self.message, "partial": self.partial,
-                "confounded": self.confounded, "closest": self.closest,
+                "confounded": self.confounded, "alternatives": self.alternatives, "closest": self.closest,
                 "more_measurements": self.more_measurements, "where": self.where}
 
 
@@ -177,6 +190,59 @@ def aicc(rss: float, n: int, k: int) -> float:
     if n - kk - 1 <= 0 or rss <= 0:
         return float("inf")
     return float(n * math.log(rss / n) + 2 * kk + 2 * kk * (kk + 1) / (n - kk - 1))
+
+
+def vuong_test(resid_a: np.ndarray, k_a: int, resid_b: np.ndarray, k_b: int) -> tuple[float, float]:
+    """Return (z, two-sided p) of Vuong's test of two least-squares fits of the same rows, nested or not.
+
+    Pointwise Gaussian log-likelihoods l_i = -log(s) - r_i^2 / (2 s^2) - log(2 pi)/2 with s^2 = RSS/n of each
+    fit; LR = sum(l_a - l_b) corrected by the AIC penalty (k_a - k_b) (Vuong 1989, Econometrica 57, 307,
+    eq 5.6 and section 5); z = LR_c / (sqrt(n) omega), omega the SD of l_a - l_b. z > 0 favours a. Fits that
+    agree at every row (omega ~ 0) give z = 0, p = 1: the data cannot tell them apart.
+    """
+    ra, rb = np.asarray(resid_a, float), np.asarray(resid_b, float)
+    n = ra.size
+    sa, sb = float(ra @ ra) / n, float(rb @ rb) / n
+    if n < 3 or sa <= 0 or sb <= 0:
+        return 0.0, 1.0
+    la = -0.5 * math.log(sa) - ra ** 2 / (2 * sa)
+    lb = -0.5 * math.log(sb) - rb ** 2 / (2 * sb)
+    d = la - lb
+    omega = float(np.std(d))
+    lr = float(d.sum()) - (k_a - k_b)
+    if omega <= 1e-12 * max(1.0, float(np.abs(d).max())):
+        return 0.0, 1.0
+    z = lr / (math.sqrt(n) * omega)
+    return float(z), float(2 * stats.norm.sf(abs(z)))
+
+
+def rank_supported(y: np.ndarray, sup: Sequence[FitSummary], alpha: float = ALPHA_SEPARATE
+                   ) -> tuple[FitSummary, list[tuple[FitSummary, float]]]:
+    """Return (the candidate to name, [(other candidate the data cannot tell from it, Vuong p)]).
+
+    Ranked by AICc (penalised fit; candidates with an own parameter at its bound last); the first is then
+    compared directly with each other one (:func:`vuong_test`) and replaced by any the data prefer at
+    two-sided p < ``alpha``. The others whose test against the one named has p >= ``alpha`` are returned
+    as not separable by these data, lowest AICc first.
+    """
+    y = np.asarray(y, float)
+    n = y.size
+    order = sorted(sup, key=lambda c: (bool(c.at_bound), aicc(c.rss, n, c.n_free), c.n_free))
+    win = order[0]
+    for c in order[1:]:
+        if bool(c.at_bound) and not win.at_bound:
+            continue
+        z, p = vuong_test(y - c.pred, c.n_free, y - win.pred, win.n_free)
+        if z > 0 and p < alpha:
+            win = c
+    alts = []
+    for c in order:
+        if c is win:
+            continue
+        z, p = vuong_test(y - win.pred, win.n_free, y - c.pred, c.n_free)
+        if p >= alpha:
+            alts.append((c, p))
+    return win, alts
 
 
 def collinear_groups(covariates: Mapping[str, np.ndarray], threshold: float = COLLINEAR_R) -> list[list[str]]:
@@ -257,6 +323,36 @@ def where_to_measure(diff: np.ndarray, covariates: Mapping[str, np.ndarray], nam
     return None if best is None else best[1]
 
 
+def where_they_differ(diff: np.ndarray, covariates: Mapping[str, np.ndarray], names: Sequence[str]) -> dict | None:
+    """Return {covariate, from, to, edge} of the contiguous range (along the covariate) around the largest
+    |diff| where two fits differ by at least half of it; ``edge`` is 'low' or 'high' when that range touches
+    the end of the data (measuring beyond it separates them best), else ''."""
+    d = np.abs(np.asarray(diff, float))
+    if d.size == 0 or not np.any(d > 0):
+        return None
+    best = None
+    for c in names:
+        if c not in covariates:
+            continue
+        x = np.asarray(covariates[c], float)
+        u = np.unique(x)
+        if u.size < 3:
+            continue
+        du = np.array([d[x == v].max() for v in u])  # largest difference at each covariate value
+        j = int(np.argmax(du))
+        lo = hi = j
+        while lo > 0 and du[lo - 1] >= 0.5 * du[j]:
+            lo -= 1
+        while hi < u.size - 1 and du[hi + 1] >= 0.5 * du[j]:
+            hi += 1
+        frac = (hi - lo + 1) / u.size
+        edge = "low" if lo == 0 and hi < u.size - 1 else "high" if hi == u.size - 1 and lo > 0 else ""
+        rec = {"covariate": c, "from": float(u[lo]), "to": float(u[hi]), "edge": edge}
+        if best is None or frac < best[0]:
+            best = (frac, rec)
+    return None if best is None else best[1]
+
+
 def _significant(struct: Sequence[dict], alpha: float, serial: bool = False) -> list[dict]:
     """Return significant structure records, most significant first; ``serial`` picks the ones that correlated
     noise alone explains (see residual_tests.structure_tests), else the others."""
@@ -294,6 +390,10 @@ def _period(struct: Sequence[dict], cov: str, alpha: float) -> float | None:
         if s["covariate"] == cov and s["test"] == "periodogram" and s["p_adjusted"] < alpha and s["periodic_period"]:
             return float(s["periodic_period"])
     return None
+
+
+def _span(rec: dict) -> str:
+    return _g(rec["from"]) if rec["from"] == rec["to"] else f"{_g(rec['from'])}-{_g(rec['to'])}"
 
 
 def _g(v: float) -> str:
@@ -351,10 +451,11 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
 
     sup = [(t, c) for t, c in zip(tests, candidates) if t.supported]
     if sup:
-        crit = {c.name: aicc(c.rss, n, c.n_free) for _, c in sup}
-        # a candidate whose own parameters end at a bound is strained to fit: any unstrained one goes first
-        t, win = min(sup, key=lambda tc: (bool(tc[1].at_bound), crit[tc[1].name], tc[1].n_free))
-        close = [c.name for _, c in sup if c is not win and crit[c.name] - crit[win.name] < CLOSE_AICC]
+        # ranked by AICc (a candidate whose own parameters end at a bound is strained to fit: unstrained
+        # ones first), then compared directly: the data may prefer another, or not separate them
+        win, alts = rank_supported(y, [c for _, c in sup])
+        t = next(tt for tt, c in sup if c is win)
+        close = [c.name for c, _ in alts]
         own = [c for c in win.covariates if c in covariates]
         conf = sorted({p for c in own for p in _partners(c, coll)} - set(own)) if own else []
         cov = own[0] if own else None
@@ -371,8 +472,17 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
                            tests=tests)
         left = _significant(win.structure, alpha_structure)
         own_left = [s for s in left if s["covariate"] in own]
-        alt = (f"; {', '.join(close)} fits almost as well (AICc within {CLOSE_AICC:g}): the data barely tell "
-               "them apart" if close else "")
+        alt = ""
+        if close:
+            wh = where_they_differ(win.pred - alts[0][0].pred, covariates,
+                                   [c for c in dict.fromkeys(own + list(alts[0][0].covariates))] or list(covariates))
+            beyond = {"low": f" and below {_g(wh['from'])}", "high": f" and above {_g(wh['to'])}"}.get(
+                wh["edge"], "") if wh else ""
+            alt = (f"; {win.name} and {' and '.join(close)} are not separable by these data (Vuong test of the "
+                   f"two fits p = {_g(alts[0][1])}; held-out RMSE {_g(win.cv_rmse)} vs {_g(alts[0][0].cv_rmse)} "
+                   f"{unit}): {win.name} is named first by penalised fit (AICc)"
+                   + (f"; more measurements at {wh['covariate']} {_span(wh)}{beyond}, where the two fits differ "
+                      "most, would separate them" if wh else ""))
         msg = (f"adding {win.name} cuts held-out RMSE from {_g(cv_base)} to {_g(win.cv_rmse)} {unit} "
                f"(F test p = {_g(t.p_value)}, {m} candidates tried{alt}); {noise_txt}{corr_txt}")
         if own_left:
@@ -389,7 +499,7 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
                        f"p = {_g(s['p_value'])}{ptxt}): a second effect or a plugin; add {win.name} and run "
                        "diagnose again")
                 return Verdict("missing_effect", win.name, s["covariate"], per, msg, partial=True, tests=tests,
-                               structure_used=left)
+                               structure_used=left, alternatives=close)
             per = _period(structure, s["covariate"], alpha_structure) if s["covariate"] in ordered else per
             ptxt = f" (period {_g(per)})" if per else ""
             how = ("leaves a periodic residual" if periodic else
@@ -403,7 +513,8 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
         if left:
             msg += (f". Structure remains against {left[0]['covariate']} ({left[0]['test']}, "
                     f"p = {_g(left[0]['p_value'])}): after adding it, run diagnose again")
-        return Verdict("missing_effect", win.name, cov, None, msg, tests=tests, structure_used=left)
+        return Verdict("missing_effect", win.name, cov, None, msg, tests=tests, structure_used=left,
+                       alternatives=close)
 
     sig = _significant(structure, alpha_structure)
     if sig:
