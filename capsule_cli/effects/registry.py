@@ -135,6 +135,9 @@ class Effect:
     #: ``apply(f_Hz, Pd_N, duty, p) -> (f_Hz, Pd_N, duty)`` (p: SI values by base name), applied to every
     #: condition before it is simulated (capsule_cli.dynamics.system); "" for the others
     role: str = ""
+    #: whether a model may hold it more than once (a physical series: a second Maxwell arm); the k-th
+    #: instance is the effect ``<name>_<k>`` with parameters ``<param>_<k>`` (see :func:`effect_instance`)
+    repeatable: bool = False
 
     def applicable(self, columns: Iterable[str], base: str | None = None) -> bool:
         """Return True when every covariate the effect needs is in ``columns`` (and the base fits)."""
@@ -275,10 +278,90 @@ def bases(kind: str | None = None) -> list[BaseModel]:
     return [b for b in _BASES.values() if kind is None or b.kind == kind]
 
 
+_INSTANCES: dict[tuple[str, str, int], Effect] = {}
+
+
+def instance_name(name: str, k: int) -> str:
+    """Return the name of the k-th instance of an effect (k = 1: the effect itself; ``maxwell_arm_2``)."""
+    return name if k <= 1 else f"{name}_{k}"
+
+
+def _instance_param_name(name: str, k: int) -> str:
+    """Return a parameter's name in the k-th instance: the suffix before the unit (``arm_E_kPa`` ->
+    ``arm_E_2_kPa``; ``n`` -> ``n_2``)."""
+    b, suffix = split_unit(name)
+    return f"{b}_{k}_{suffix}" if suffix else f"{name}_{k}"
+
+
+def effect_instance(effect: Effect, k: int) -> Effect:
+    """Return the k-th instance (k >= 2) of a repeatable effect: named ``<name>_<k>``, its parameters
+    ``<param>_<k>`` (own keys, so two instances in one model never share a value), the same physics.
+
+    ``apply`` and ``guess`` see the original parameter keys: the instance maps them back and forth.
+    """
+    if k <= 1:
+        return effect
+    if not effect.repeatable:
+        raise InputError(f"effect '{effect.name}' ({effect.kind}) cannot be added more than once")
+    key = (effect.kind, effect.name, k)
+    if key in _INSTANCES:
+        return _INSTANCES[key]
+    params = tuple(Param(_instance_param_name(p.name, k), p.start, p.bounds, p.off, p.free, p.description)
+                   for p in effect.params)
+    to_orig = {new.key: old.key for new, old in zip(params, effect.params)}
+    to_new = {v: k_ for k_, v in to_orig.items()}
+    apply0, guess0 = effect.apply, effect.guess
+
+    def apply(y, x, p, ctx):
+        return apply0(y, x, {to_orig.get(k_, k_): v for k_, v in p.items()}, ctx)
+
+    guess = None
+    if guess0 is not None:
+        def guess(r, x, ctx):
+            g = guess0(r, x, ctx) or {}
+            return {to_new.get(k_, k_): v for k_, v in g.items()}
+
+    inst = Effect(name=instance_name(effect.name, k), kind=effect.kind,
+                  description=f"{effect.description} (instance {k}: its own parameters, suffixed _{k})",
+                  source=effect.source, params=params, covariates=effect.covariates, apply=apply, guess=guess,
+                  bases=effect.bases, origin=effect.origin, role=effect.role, repeatable=False)
+    _INSTANCES[key] = inst
+    return inst
+
+
+def _split_instance(name: str) -> tuple[str, int] | None:
+    head, _, tail = name.rpartition("_")
+    if head and tail.isdigit() and int(tail) >= 2:
+        return head, int(tail)
+    return None
+
+
+def next_instance(kind: str, name: str, have: Iterable[str]) -> Effect | None:
+    """Return the next instance of a repeatable effect not in ``have`` (``maxwell_arm`` -> ``maxwell_arm_2``
+    when the model holds one arm), or None when the effect is not repeatable."""
+    eff = get_effect(kind, name)
+    if not eff.repeatable:
+        return None
+    have = set(have)
+    k = 2
+    while instance_name(name, k) in have:
+        k += 1
+    return effect_instance(eff, k)
+
+
 def get_effect(kind: str, name: str, where: str = "") -> Effect:
-    """Return the effect ``name`` of ``kind``; InputError with a suggestion when unknown."""
+    """Return the effect ``name`` of ``kind`` (``<name>_<k>``: the k-th instance of a repeatable one);
+    InputError with a suggestion when unknown."""
     _ensure_builtins()
     eff = _EFFECTS.get((kind, name))
+    if eff is None:
+        split = _split_instance(name)
+        orig = _EFFECTS.get((kind, split[0])) if split else None
+        if orig is not None:
+            if not orig.repeatable:
+                raise InputError(f"{where}effect '{split[0]}' ({kind}) cannot be added more than once, so "
+                                 f"'{name}' is not an effect")
+            return effect_instance(orig, split[1])
     if eff is None:
         names = [e.name for e in effects(kind)]
         other = [k for (k, n) in _EFFECTS if n == name]

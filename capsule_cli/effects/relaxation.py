@@ -61,9 +61,10 @@ def _arm_guess(r, x, ctx):
 register_effect(Effect(
     name="maxwell_arm", kind=KIND,
     description="One more spring-dashpot arm of the generalised Maxwell (Prony) series, a second relaxation "
-                "time: P += factor E_a exp(-t E_a/eta_a). Seed 003 cites a five-element (two-arm) model.",
+                "time: P += factor E_a exp(-t E_a/eta_a). Seed 003 cites a five-element (two-arm) model. "
+                "Repeatable: maxwell_arm_2, maxwell_arm_3 ... add further arms (parameters arm_E_2_kPa, ...).",
     source="seed 004 eq 1; seed 003 Fig 5a",
     params=(Param("arm_E_kPa", 100.0, (0.0, 1e6), 0.0, description="arm spring E_a"),
             Param("arm_eta_MPa_s", 0.5, (1e-6, 1e5), 0.5, description="arm dashpot eta_a")),
-    covariates=("time_s",), apply=_arm, guess=_arm_guess,
+    covariates=("time_s",), apply=_arm, guess=_arm_guess, repeatable=True,
 ))

@@ -19,7 +19,7 @@ import pandas as pd
 import yaml
 
 from ..effects.model import Model
-from ..effects.registry import Effect, base_name, effects as all_effects, si_factor
+from ..effects.registry import Effect, base_name, effects as all_effects, next_instance, si_factor
 from ..tables import (is_synthetic, provenance, response_column, write_json_atomic, write_table,
                       write_text_atomic)
 from ..units import split_unit, unit_label
@@ -78,9 +78,18 @@ def skipped_effects(model: Model, df: pd.DataFrame) -> list[dict]:
 
 
 def applicable_effects(model: Model, df: pd.DataFrame) -> list[Effect]:
-    """Return the effects of the model's kind not in it whose covariates the table has."""
+    """Return the effects of the model's kind not in it whose covariates the table has; a repeatable effect
+    the model already holds (``maxwell_arm``) is offered as its next instance (``maxwell_arm_2``)."""
     have = set(model.effect_names)
-    return [e for e in all_effects(model.kind) if e.name not in have and e.applicable(df.columns, model.base.name)]
+    out = []
+    for e in all_effects(model.kind):
+        if e.name in have:
+            e = next_instance(model.kind, e.name, have) if e.repeatable else None
+            if e is None:
+                continue
+        if e.applicable(df.columns, model.base.name):
+            out.append(e)
+    return out
 
 
 def _guess_values(eff: Effect, ev: Evaluation) -> dict[str, float]:
