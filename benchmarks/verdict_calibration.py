@@ -128,14 +128,15 @@ def oracle_rss(y: np.ndarray, shape: np.ndarray) -> float:
 def naming_oracle(y: np.ndarray, shape: np.ndarray, result: dict, effect: str, alpha: float) -> bool:
     """Return True when an oracle that knows the true shape (its parameters other than the amplitude) would
     name it: it detects the effect (:func:`oracle_p` < alpha) and the true shape's AICc (base + 1 amplitude)
-    is below that of every other candidate that passes the rule, as diagnose fitted them (the rule's penalised
-    ranking, given the true shape)."""
+    is below that of every other candidate that passes the rule with no parameter at a bound, as diagnose fitted
+    them (the rule's penalised ranking, given the true shape; a reference, not a bound on the rule)."""
     if oracle_p(y, shape) >= alpha:
         return False
     n = y.size
     own = aicc(oracle_rss(y, shape), n, 2)
     others = [aicc(c["rmse"] ** 2 * n, n, c["n_free"]) for c in result["candidates"]
-              if c["effect"] != effect and c["passes"]]
+              if c["effect"] != effect and c["passes"]
+              and not any(q.get("at_bound") for q in c["params"].values())]
     return own <= min(others, default=float("inf"))
 
 
