@@ -117,12 +117,14 @@ def register(app: typer.Typer) -> None:
     ):
         """Calibrate a model's free parameters on measurements; error metrics (held-out RMSE, noise), figures, ledger row."""
         check_outputs(folder=out, ledger=ledger)  # before any work (exit 2 naming the path)
-        from ..steps import dynamics_loop
         from ..steps.compare import run_compare
+        from ..steps.diagnose import DYNAMICS_KINDS
 
         m = _load(model, plugins)
         df, k = _data(data, m, kind, drop_incomplete)
-        if dynamics_loop.is_dynamics(k):
+        if k in DYNAMICS_KINDS:  # the engine-based loop, imported only then (numba)
+            from ..steps import dynamics_loop
+
             met = dynamics_loop.run_compare(m, df, str(data), out, ledger, folds, seed, budget=_effort(effort))
         else:
             met = run_compare(m, df, k, str(data), out, ledger, folds, seed)
@@ -149,12 +151,13 @@ def register(app: typer.Typer) -> None:
     ):
         """Where the model fails and which physical effect is missing: a verdict by a rule fixed in advance (F test, held-out error)."""
         check_outputs(folder=out, write_model=write_model)  # before any work (exit 2 naming the path)
-        from ..steps import dynamics_loop
-        from ..steps.diagnose import run_diagnose
+        from ..steps.diagnose import DYNAMICS_KINDS, run_diagnose
 
         m = _load(model, plugins)
         df, k = _data(data, m, kind, drop_incomplete)
-        if dynamics_loop.is_dynamics(k):
+        if k in DYNAMICS_KINDS:  # the engine-based loop, imported only then (numba)
+            from ..steps import dynamics_loop
+
             r = dynamics_loop.run_diagnose(m, df, str(data), out, write_model, folds, seed, add_best=add_best,
                                            quiet=quiet, budget=_effort(effort))
         else:

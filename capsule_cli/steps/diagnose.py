@@ -34,6 +34,9 @@ from .verdict import (ALPHA_EFFECT, ALPHA_STRUCTURE, RULE_TEXT, FitSummary, Nois
                       decide_verdict)
 
 ALPHA = ALPHA_STRUCTURE
+#: kinds diagnosed by the engine-based loop (capsule_cli.steps.dynamics_loop.DYN_KINDS; named here so that a
+#: quasi-static diagnose does not import the engine)
+DYNAMICS_KINDS = ("progression", "trajectory")
 CANDIDATE_STARTS = 3  # effects with a data-based guess
 PLAIN_STARTS = 8  # effects without one (plugins): more random starts within the bounds
 
@@ -266,9 +269,9 @@ def run_diagnose(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_
                  write_model: str | Path | None = None, k_folds: int = 5, seed: int = 0,
                  add_best: bool = False, quiet: bool = True, figures: bool = True) -> dict:
     """Diagnose ``model`` against the table; write diagnosis.json/.md, figures and optionally the new model."""
-    from . import dynamics_loop
+    if kind in DYNAMICS_KINDS:  # progression, trajectory: the engine-based loop (imported only then: numba)
+        from . import dynamics_loop
 
-    if dynamics_loop.is_dynamics(kind):  # progression, trajectory: the engine-based loop
         return dynamics_loop.run_diagnose(model, df, data_path, out_dir, write_model, k_folds, seed,
                                           add_best=add_best, quiet=quiet, figures=figures)
     dg = diagnose_table(model, df, kind, str(data_path), k_folds, seed, quiet)
