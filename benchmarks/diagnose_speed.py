@@ -2,7 +2,8 @@
 
     python benchmarks/diagnose_speed.py [--repeat 3]
 
-Prints JSON: the end-to-end wall time of the command (a fresh process, figures on, best of --repeat) and,
+Prints JSON: the end-to-end wall time of the command (a fresh process, figures on, best of --repeat; and with
+--no-figures) and,
 in one process, where the time goes: imports, reading, fits + tests + verdict (diagnose_table), matplotlib
 import, writing tables and figures. The table is made by capsule-cli synth (seed 000 eq 17 + noise).
 """
@@ -37,6 +38,12 @@ def main(argv=None) -> int:
         subprocess.run(cli + ["diagnose", "--model", str(ROOT / "configs/models/coulomb.yaml"), "--data", str(data),
                               "--out", str(tmp / f"d{i}"), "--quiet"], check=True, cwd=ROOT)
         walls.append(time.perf_counter() - t)
+    walls_nofig = []
+    for i in range(a.repeat):
+        t = time.perf_counter()
+        subprocess.run(cli + ["diagnose", "--model", str(ROOT / "configs/models/coulomb.yaml"), "--data", str(data),
+                              "--out", str(tmp / f"n{i}"), "--no-figures", "--quiet"], check=True, cwd=ROOT)
+        walls_nofig.append(time.perf_counter() - t)
     split = subprocess.run([sys.executable, "-c", f"""
 import time, json
 t0 = time.perf_counter()
@@ -57,6 +64,7 @@ print(json.dumps({{"imports_s": t1 - t0, "read_s": t2 - t1, "fits_tests_verdict_
                   "matplotlib_import_s": t4 - t3, "run_diagnose_with_figures_s": t5 - t4}}))
 """], check=True, cwd=ROOT, capture_output=True, text=True)
     print(json.dumps({"n_points": 20, "end_to_end_wall_s": min(walls), "all_wall_s": walls,
+                      "end_to_end_no_figures_wall_s": min(walls_nofig), "all_no_figures_wall_s": walls_nofig,
                       "in_process_split": json.loads(split.stdout)}, indent=1))
     return 0
 

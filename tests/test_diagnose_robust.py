@@ -160,3 +160,12 @@ def test_skipped_candidates_are_listed_with_reasons(tmp_path):
     md = (tmp_path / "d" / "diagnosis.md").read_text()
     assert "circular_folds: the table has no column position_mm" in md
     assert r["verdict"]["outcome"] == "cannot_tell" and "nothing is missing" not in r["verdict"]["message"]
+
+
+def test_diagnose_without_figures_writes_the_verdict_and_no_png(tmp_path):
+    out = tmp_path / "d"
+    assert main(["diagnose", "--model", "configs/models/coulomb.yaml", "--data", "configs/data/seed000_case1_friction.csv",
+                 "--out", str(out), "--no-figures", "--quiet"]) == 0
+    r = __import__("json").loads((out / "diagnosis.json").read_text())
+    assert r["figures"] == [] and not list(out.glob("*.png"))
+    assert r["verdict"]["message"] and (out / "diagnosis.md").is_file()
