@@ -161,3 +161,14 @@ def test_two_candidates_the_data_cannot_separate_are_named_together():
     v = decide_verdict(y, base, [visc, power], Noise(0.2, 0.03), {"speed_mm_s": X}, [], GROUPS, 5)
     assert v.missing_effect == "speed_power_law" and v.alternatives == []
     assert "not separable" not in v.message and v.as_dict()["alternatives"] == []
+
+
+def test_where_two_fits_differ_is_a_contiguous_range_with_its_edge():
+    from capsule_cli.steps.verdict import where_they_differ
+
+    x = np.arange(1.0, 11.0)
+    mid = where_they_differ(np.exp(-0.5 * (x - 5) ** 2), {"speed_mm_s": x}, ["speed_mm_s"])
+    assert mid == {"covariate": "speed_mm_s", "from": 4.0, "to": 6.0, "edge": ""}
+    top = where_they_differ(x ** 2, {"speed_mm_s": x}, ["speed_mm_s"])
+    assert top["edge"] == "high" and top["from"] == 8.0 and top["to"] == 10.0  # 8^2 >= 100 / 2 > 7^2
+    assert where_they_differ(np.zeros(10), {"speed_mm_s": x}, ["speed_mm_s"]) is None

@@ -476,13 +476,17 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
         if close:
             wh = where_they_differ(win.pred - alts[0][0].pred, covariates,
                                    [c for c in dict.fromkeys(own + list(alts[0][0].covariates))] or list(covariates))
-            beyond = {"low": f" and below {_g(wh['from'])}", "high": f" and above {_g(wh['to'])}"}.get(
-                wh["edge"], "") if wh else ""
+            where = ""
+            if wh:
+                c_ = wh["covariate"]
+                where = {"low": f"at and below {c_} {_g(wh['to'])} (the low end of the data)",
+                         "high": f"at and above {c_} {_g(wh['from'])} (the high end of the data)"}.get(
+                    wh["edge"], f"at {c_} {_span(wh)}")
             alt = (f"; {win.name} and {' and '.join(close)} are not separable by these data (Vuong test of the "
                    f"two fits p = {_g(alts[0][1])}; held-out RMSE {_g(win.cv_rmse)} vs {_g(alts[0][0].cv_rmse)} "
                    f"{unit}): {win.name} is named first by penalised fit (AICc)"
-                   + (f"; more measurements at {wh['covariate']} {_span(wh)}{beyond}, where the two fits differ "
-                      "most, would separate them" if wh else ""))
+                   + (f"; more measurements {where}, where the two fits differ most, would separate them"
+                      if where else ""))
         msg = (f"adding {win.name} cuts held-out RMSE from {_g(cv_base)} to {_g(win.cv_rmse)} {unit} "
                f"(F test p = {_g(t.p_value)}, {m} candidates tried{alt}); {noise_txt}{corr_txt}")
         if own_left:
