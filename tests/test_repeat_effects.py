@@ -8,6 +8,7 @@ already holds one arm. Data come from capsule-cli synth's engine (three relaxati
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from capsule_cli.effects.model import build_model
@@ -32,7 +33,7 @@ def test_second_instance_has_its_own_parameters_and_the_same_physics():
     assert [p.name for p in arm2.params] == ["arm_E_2_kPa", "arm_eta_2_MPa_s"]
     assert [p.bounds for p in arm2.params] == [p.bounds for p in arm.params]
     # two arms of the same values add up to one arm of twice the modulus at the same time constant
-    design = __import__("pandas").DataFrame(RTIME)
+    design = pd.DataFrame(RTIME)
     two = synthesize(mk({"kind": "relaxation", "base": "maxwell", "effects": ["maxwell_arm", "maxwell_arm_2"],
                          "params": {"arm_E_kPa": 150.0, "arm_eta_MPa_s": 0.3, "arm_E_2_kPa": 150.0,
                                     "arm_eta_2_MPa_s": 0.3}}), design, 0.0, 0.0, 1, 0)
@@ -64,7 +65,13 @@ def test_third_arm_step_by_step_until_the_error_falls_to_noise(tmp_path):
     assert m2.effect_names == ["maxwell_arm", "maxwell_arm_2"]
     assert {"arm_E_kPa", "arm_E_2_kPa", "arm_eta_2_MPa_s"} <= {s.key for s in m2.specs if s.free}
     met2 = run_compare(m2, d, k, str(data), tmp_path / "cmp2", None, figures=False)
-    assert met2["cv_rmse"] <= 1.2 * sd < met["cv_rmse"], (met2["cv_rmse"], met["cv_rmse"])
+    # the error falls to the noise: in sample as low as the true three-arm model's on these data, held out
+    # within 1.4 x the noise SD (7 free parameters on 59 points of three exponentials: over seeds 0-3 the
+    # held-out RMSE was 0.96-1.37 x the noise SD, the in-sample RMSE 0.96-0.99 x the truth's)
+    truth = synthesize(mk(THREE_ARMS), pd.DataFrame(RTIME), 0.0, 0.0, 1, 0)["pressure_kPa"].to_numpy()
+    rmse_truth = float(np.sqrt(np.mean((d["pressure_kPa"].to_numpy() - truth) ** 2)))
+    assert met2["rmse"] <= 1.05 * rmse_truth, (met2["rmse"], rmse_truth)
+    assert met2["cv_rmse"] <= 1.4 * sd and met2["cv_rmse"] < met["cv_rmse"], (met2["cv_rmse"], met["cv_rmse"])
     # the added arms find the fast time constant (2 s) and one between it and the base arm's (three
     # exponentials 2, 8 and 27 s apart trade the slower two against each other at this noise)
     vals = {s.key: s.value for s in m2.specs}
