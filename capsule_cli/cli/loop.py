@@ -201,7 +201,7 @@ def register(app: typer.Typer) -> None:
                        "params": [prm(p) for p in b.params]} for b in bases(kind)],
             "effects": [{"name": e.name, "kind": e.kind, "origin": e.origin, "covariates": list(e.covariates),
                          "bases": list(e.bases), "description": e.description, "source": e.source,
-                         "params": [prm(p) for p in e.params]} for e in effects(kind)],
+                         "repeatable": e.repeatable, "params": [prm(p) for p in e.params]} for e in effects(kind)],
         }
         if as_json:
             typer.echo(json.dumps(items, indent=2, default=str))
@@ -219,7 +219,8 @@ def register(app: typer.Typer) -> None:
             for e in es:
                 needs = f" needs {', '.join(e['covariates'])};" if e["covariates"] else ""
                 only = f" base {'/'.join(e['bases'])} only;" if e["bases"] else ""
-                typer.echo(f"effect {e['name']} ({e['origin']};{needs}{only} source: {e['source']})")
+                rep = f" repeatable as {e['name']}_2, {e['name']}_3 ...;" if e["repeatable"] else ""
+                typer.echo(f"effect {e['name']} ({e['origin']};{needs}{only}{rep} source: {e['source']})")
                 typer.echo(f"    {e['description']}")
                 for p in e["params"]:
                     lo, hi = p["bounds"]

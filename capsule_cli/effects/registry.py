@@ -195,7 +195,8 @@ def _check_params(owner: str, params: Sequence[Param], is_effect: bool) -> None:
 
 def register_effect(effect: Effect | None = None, *, name: str | None = None, kind: str | None = None,
                     params: Sequence[Param] = (), covariates: Sequence[str] = (), description: str = "",
-                    source: str = "", guess: GuessFn | None = None, bases: Sequence[str] = (), role: str = ""):
+                    source: str = "", guess: GuessFn | None = None, bases: Sequence[str] = (), role: str = "",
+                    repeatable: bool = False):
     """Register an effect; use as ``register_effect(Effect(...))`` or as a decorator.
 
     As a decorator the function is ``apply(y, x, p, ctx) -> y`` (see the module doc)::
@@ -205,7 +206,8 @@ def register_effect(effect: Effect | None = None, *, name: str | None = None, ki
         def my_effect(y, x, p, ctx):
             return y + p["k"] * (x["temperature"] - 37.0)
 
-    Raises ValueError on a bad registration (unknown kind, a parameter without
+    ``repeatable=True`` lets a model hold the effect more than once (``<name>_2`` with parameters
+    ``<param>_2``, see :func:`effect_instance`). Raises ValueError on a bad registration (unknown kind, a parameter without
     bounds/off, a name clash with another effect of the kind).
     """
     if effect is not None:
@@ -217,7 +219,8 @@ def register_effect(effect: Effect | None = None, *, name: str | None = None, ki
             raise ValueError("register_effect decorates a function apply(y, x, p, ctx)")
         eff = Effect(name=name or fn.__name__, kind=kind or "", description=description or (fn.__doc__ or "").strip(),
                      source=source or "user plugin", params=tuple(params), covariates=tuple(covariates),
-                     apply=fn, guess=guess, bases=tuple(bases), origin=_CURRENT_ORIGIN[-1], role=role)
+                     apply=fn, guess=guess, bases=tuple(bases), origin=_CURRENT_ORIGIN[-1], role=role,
+                     repeatable=bool(repeatable))
         _add_effect(eff)
         return fn
 
