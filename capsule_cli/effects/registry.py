@@ -239,6 +239,8 @@ def _add_effect(eff: Effect) -> None:
     _check_params(f"effect '{eff.name}'", eff.params, True)
     if eff.role not in ("", "drive"):
         raise ValueError(f"effect '{eff.name}': unknown role '{eff.role}' (\"drive\" for a drive transform)")
+    if eff.role and eff.repeatable:
+        raise ValueError(f"effect '{eff.name}': a drive transform cannot be repeatable")
     if eff.role == "drive" and eff.kind not in ("progression", "trajectory"):
         raise ValueError(f"effect '{eff.name}': a drive transform is a progression or trajectory effect")
     for cov in eff.covariates:
