@@ -73,6 +73,7 @@ PATCH_STICK = 5
 EV_NONE = -1
 EV_FRONT_ON, EV_BACK_ON, EV_FRONT_OFF, EV_BACK_OFF = 1, 2, 3, 4
 EV_BREAK_POS, EV_BREAK_NEG, EV_SLIP_END, EV_FAST_ON, EV_FAST_OFF = 5, 6, 7, 8, 9
+EV_TILT = 10  # the tilt factor of the friction level crosses zero (a general linear mode ends)
 # recorded kinds (the event list)
 K_FRONT_ON, K_FRONT_OFF, K_BACK_ON, K_BACK_OFF = 1, 2, 3, 4
 K_STICK, K_SLIP_FWD, K_SLIP_BWD, K_DRIVE_ON, K_DRIVE_OFF = 5, 6, 7, 8, 9
@@ -91,7 +92,13 @@ N_PERIOD_COLS = 12
 # energy entries
 E_DRIVE, E_DAMP, E_CONTACT, E_FRIC, E_START, E_END = range(6)
 
-NB = 7
+# basis of a linear mode (:func:`basis`): modal slot 1, drive cos/sin, 1, tau, tau^2, modal slot 2
+NB = 9
+B_M1, B_COS, B_SIN, B_ONE, B_T, B_T2, B_M2 = 0, 2, 3, 4, 5, 6, 7
+MODE_OSC, MODE_REAL, MODE_NONE = 0, 1, 2
+# coefficient rows of a linear mode's state
+R_XR, R_VR, R_XC, R_VC, R_D = 0, 1, 2, 3, 4
+N_ROWS = 5
 TWO_PI = 2.0 * math.pi
 EPS = 2.220446049250313e-16
 
@@ -230,48 +237,136 @@ def decide_shell(p, contact, xr, vr, fe):
 
 
 @njit(cache=True)
-def basis(tau, s0, sig, disc, w, Om, B):
-    """Fill B with the seven basis functions at segment time tau."""
-    e = math.exp(sig * tau)
-    if disc < 0.0:
-        C = math.cos(w * tau)
-        S = math.sin(w * tau) / w
-    elif disc > 0.0:
-        C = math.cosh(w * tau)
-        S = math.sinh(w * tau) / w
+def slot_fill(kind, a, b, c, tau, B, i):
+    """Fill B[i], B[i+1] with one modal slot of a linear mode at segment time tau.
+
+    kind MODE_OSC: ``e^{a tau} C(tau)``, ``e^{a tau} S(tau)`` with a = sigma, b = discriminant,
+    c = sqrt|b| (C, S = cos, sin/w; cosh, sinh/w; 1, tau by the sign of b);
+    kind MODE_REAL: ``e^{a tau}``, ``e^{b tau}`` (two real eigenvalues); MODE_NONE: zeros.
+    """
+    if kind == MODE_OSC:
+        e = math.exp(a * tau)
+        if b < 0.0:
+            B[i] = e * math.cos(c * tau)
+            B[i + 1] = e * math.sin(c * tau) / c
+        elif b > 0.0:
+            B[i] = e * math.cosh(c * tau)
+            B[i + 1] = e * math.sinh(c * tau) / c
+        else:
+            B[i] = e
+            B[i + 1] = e * tau
+    elif kind == MODE_REAL:
+        B[i] = math.exp(a * tau)
+        B[i + 1] = math.exp(b * tau)
     else:
-        C = 1.0
-        S = tau
-    B[0] = e * C
-    B[1] = e * S
+        B[i] = 0.0
+        B[i + 1] = 0.0
+
+
+@njit(cache=True)
+def basis(tau, s0, md, Om, B):
+    """Fill B with the NB basis functions of a linear mode at segment time tau.
+
+    Layout: [slot 1 (2), cos(Om s), sin(Om s), 1, tau, tau^2, slot 2 (2)] with s = s0 + tau; the
+    slots are described by md = [kind1, a1, b1, c1, kind2, a2, b2, c2] (:func:`slot_fill`).
+    """
+    slot_fill(md[0], md[1], md[2], md[3], tau, B, B_M1)
     ph = Om * (s0 + tau)
-    B[2] = math.cos(ph)
-    B[3] = math.sin(ph)
-    B[4] = 1.0
-    B[5] = tau
-    B[6] = tau * tau
+    B[B_COS] = math.cos(ph)
+    B[B_SIN] = math.sin(ph)
+    B[B_ONE] = 1.0
+    B[B_T] = tau
+    B[B_T2] = tau * tau
+    if md[4] == MODE_NONE:
+        B[B_M2] = 0.0
+        B[B_M2 + 1] = 0.0
+    else:
+        slot_fill(md[4], md[5], md[6], md[7], tau, B, B_M2)
 
 
 @njit(cache=True)
 def dot7(c, B):
-    return c[0] * B[0] + c[1] * B[1] + c[2] * B[2] + c[3] * B[3] + c[4] * B[4] + c[5] * B[5] + c[6] * B[6]
+    """Value of the basis combination with coefficients c (all NB functions)."""
+    return (c[0] * B[0] + c[1] * B[1] + c[2] * B[2] + c[3] * B[3] + c[4] * B[4] + c[5] * B[5] + c[6] * B[6]
+            + c[7] * B[7] + c[8] * B[8])
 
 
 @njit(cache=True)
-def deriv_coefs(c, sig, disc, Om, out):
+def _slot_deriv(kind, a, b, c, out, i):
+    if kind == MODE_OSC:
+        c0 = c[i]
+        out[i] = a * c0 + c[i + 1]
+        out[i + 1] = b * c0 + a * c[i + 1]
+    elif kind == MODE_REAL:
+        out[i] = a * c[i]
+        out[i + 1] = b * c[i + 1]
+    else:
+        out[i] = 0.0
+        out[i + 1] = 0.0
+
+
+@njit(cache=True)
+def deriv_coefs(c, md, Om, out):
     """Coefficients of d/dtau of a basis combination."""
-    out[0] = sig * c[0] + c[1]
-    out[1] = disc * c[0] + sig * c[1]
-    out[2] = Om * c[3]
-    out[3] = -Om * c[2]
-    out[4] = c[5]
-    out[5] = 2.0 * c[6]
-    out[6] = 0.0
+    _slot_deriv(md[0], md[1], md[2], c, out, B_M1)
+    out[B_COS] = Om * c[B_SIN]
+    out[B_SIN] = -Om * c[B_COS]
+    out[B_ONE] = c[B_T]
+    out[B_T] = 2.0 * c[B_T2]
+    out[B_T2] = 0.0
+    _slot_deriv(md[4], md[5], md[6], c, out, B_M2)
 
 
 @njit(cache=True)
-def setup_linear(p, contact, shell, s0, xr0, vr0, Xc0, Vc0, fe_level, coef):
-    """Fill coef rows (x_r, v_r, X_c, V_c) of a linear mode; return (sig, disc, w, wmax, Om).
+def _slot_antideriv(kind, a, b, c, out, i):
+    if kind == MODE_OSC:
+        det = a * a - b  # = omega_0^2 > 0 for a nonsingular mode
+        d0 = (a * c[i] - c[i + 1]) / det
+        out[i] = d0
+        out[i + 1] = c[i] - a * d0
+    elif kind == MODE_REAL:
+        out[i] = c[i] / a
+        out[i + 1] = c[i + 1] / b if c[i + 1] != 0.0 else 0.0
+    else:
+        out[i] = 0.0
+        out[i + 1] = 0.0
+
+
+@njit(cache=True)
+def antideriv_coefs(c, md, Om, s0, value0, out):
+    """Coefficients of the antiderivative of a basis combination c that equals value0 at tau = 0.
+
+    c must have no tau^2 term (the quadratures of a linear mode never do); the modal slots are
+    nonsingular (no zero eigenvalue), and a drive term needs Om > 0.
+    """
+    _slot_antideriv(md[0], md[1], md[2], c, out, B_M1)
+    _slot_antideriv(md[4], md[5], md[6], c, out, B_M2)
+    if Om > 0.0:
+        out[B_COS] = -c[B_SIN] / Om
+        out[B_SIN] = c[B_COS] / Om
+    else:
+        out[B_COS] = 0.0
+        out[B_SIN] = 0.0
+    out[B_T2] = 0.5 * c[B_T]
+    out[B_T] = c[B_ONE]
+    out[B_ONE] = 0.0
+    # value at tau = 0 of everything but the constant
+    v = out[B_COS] * math.cos(Om * s0) + out[B_SIN] * math.sin(Om * s0)
+    if md[0] != MODE_NONE:
+        v += out[B_M1]
+        if md[0] == MODE_REAL:
+            v += out[B_M1 + 1]
+    if md[4] != MODE_NONE:
+        v += out[B_M2]
+        if md[4] == MODE_REAL:
+            v += out[B_M2 + 1]
+    out[B_ONE] = value0 - v
+
+
+@njit(cache=True)
+def setup_linear(p, contact, shell, s0, xr0, vr0, Xc0, Vc0, fe_level, coef, md):
+    """Fill coef rows (x_r, v_r, X_c, V_c) and the mode descriptor md of a base linear mode (one
+    modal slot, closed form); return (wmax, Om).
 
     ``shell`` is STICK, SLIP_POS or SLIP_NEG (constant friction level p[I_L0]).
     """
@@ -315,9 +410,14 @@ def setup_linear(p, contact, shell, s0, xr0, vr0, Xc0, Vc0, fe_level, coef):
     vp0 = -Om * Zr * s2 - Om * Zi * c2
     d0 = xr0 - xp0
     d1 = vr0 - vp0
-    for i in range(4):
+    for i in range(N_ROWS):
         for j in range(NB):
             coef[i, j] = 0.0
+    md[0] = MODE_OSC
+    md[1] = sig
+    md[2] = disc
+    md[3] = w
+    md[4] = MODE_NONE
     coef[0, 0] = d0
     coef[0, 1] = d1 - sig * d0
     coef[0, 2] = Zr
@@ -359,21 +459,386 @@ def setup_linear(p, contact, shell, s0, xr0, vr0, Xc0, Vc0, fe_level, coef):
     if disc > 0.0:
         wmax = max(wmax, abs(sig) + w)
     wmax = max(wmax, Om)
-    return sig, disc, w, wmax, Om
+    return wmax, Om
+
+
+# ---------------------------------------------------------------------------
+# general linear modes (dynamics effects): exact solution from the eigen-decomposition
+
+# kinds of general linear mode
+GM_SLIP, GM_PSTICK, GM_PSLIDE = 0, 1, 2
+N_GM_KEYS = 30  # 3 contacts x 5 (slip +/-, patch stick, patch slide +/-) x 2 (tilt level on / held at 0)
+EIG_COND_MAX = 1e8  # eigenvector condition above which a mode is integrated on the adaptive path
 
 
 @njit(cache=True)
-def refine_root(c, dc, a, b, s0, sig, disc, w, Om, B):
+def friction_row(p, tilt_on):
+    """Return (L0, L1) of the constant-level friction force L0 + L1 x_r [N] of a slip (Coulomb, or a
+    speed law held below V_min), with the tilt factor 1 + kappa x_r / G_1 (``tilt_friction``) active
+    (tilt_on) or held at zero."""
+    if p[I_KAP] == 0.0:
+        return p[I_L0], 0.0
+    if tilt_on:
+        return p[I_L0], p[I_L0] * p[I_KAP] / p[I_G1]
+    return 0.0, 0.0
+
+
+@njit(cache=True)
+def mode_system(p, contact, gm, sg, tilt_on, fe_level, A, b0, bc):
+    """Fill the linear system u' = A u + b0 + bc cos(Om s) of a general linear mode.
+
+    u = [x_r, v_r, X_c, V_c, d] (rows R_*; d = presliding spring extension of substrate_compliance).
+    Magnet ``M_m X_m'' = F_e - F_i``; shell ``M_c X_c'' = F_i - F_s - c_v V_c`` with F_s the
+    substrate force: slip (gm GM_SLIP) or patch slide (GM_PSLIDE) ``sg (L0 + L1 x_r)``; patch stuck
+    (GM_PSTICK) ``k_s d + c_s V_c`` (physics.md section 3, dynamics effects; seed 000 eqs 19-21).
+    """
+    for i in range(N_ROWS):
+        b0[i] = 0.0
+        bc[i] = 0.0
+        for j in range(N_ROWS):
+            A[i, j] = 0.0
+    K, C, F0 = contact_terms(p, contact)
+    Mm = p[I_MM]
+    Mc = p[I_MC]
+    L0, L1 = friction_row(p, tilt_on)
+    # shell acceleration a_c
+    A[R_VC, R_XR] = K / Mc
+    A[R_VC, R_VR] = C / Mc
+    A[R_VC, R_VC] = -p[I_CV] / Mc
+    b0[R_VC] = F0 / Mc
+    if gm == GM_PSTICK:
+        A[R_VC, R_D] = -p[I_KS] / Mc
+        A[R_VC, R_VC] -= p[I_CS] / Mc
+        A[R_D, R_VC] = 1.0
+    else:
+        A[R_VC, R_XR] -= sg * L1 / Mc
+        b0[R_VC] -= sg * L0 / Mc
+        if gm == GM_PSLIDE and p[I_CS] > 0.0:
+            A[R_D, R_XR] = sg * L1 / p[I_CS]
+            A[R_D, R_D] = -p[I_KS] / p[I_CS]
+            b0[R_D] = sg * L0 / p[I_CS]
+    # relative acceleration (F_e - F_i) / M_m - a_c
+    A[R_XR, R_VR] = 1.0
+    A[R_VR, R_XR] = -K / Mm - A[R_VC, R_XR]
+    A[R_VR, R_VR] = -C / Mm - A[R_VC, R_VR]
+    A[R_VR, R_VC] = -A[R_VC, R_VC]
+    A[R_VR, R_D] = -A[R_VC, R_D]
+    b0[R_VR] = -F0 / Mm - b0[R_VC]
+    if p[I_WAVE] < 0.5:
+        bc[R_VR] = p[I_PD] / Mm
+    else:
+        b0[R_VR] += fe_level / Mm
+    A[R_XC, R_VC] = 1.0
+
+
+@njit(cache=True)
+def mode_decompose(A, core, quad, lam, V, Vi, mdt, fn_eig):
+    """Split a general linear mode into its core (a nonsingular block) and quadratures, and
+    eigen-decompose the core; return (n_core, n_quad, ok, wmax_modal).
+
+    A variable is a quadrature when no variable outside the quadratures found so far depends on it
+    (X_c always; V_c without drag or patch; d when constant). quad lists them in the order they
+    must be integrated. mdt: the modal slots of :func:`basis`; fn_eig[i]: the eigenvalue of slot
+    function i (-1 unused). ok is False for a singular or nearly defective core (eigenvector
+    condition above EIG_COND_MAX): the mode then goes to the adaptive path.
+    """
+    n = A.shape[0]
+    inq = np.zeros(n, dtype=np.bool_)
+    nq = 0
+    order = np.zeros(n, dtype=np.int64)
+    changed = True
+    while changed:
+        changed = False
+        for j in range(n):
+            if inq[j]:
+                continue
+            dep = False
+            for i in range(n):
+                if not inq[i] and A[i, j] != 0.0:
+                    dep = True
+                    break
+            if not dep:
+                inq[j] = True
+                order[nq] = j
+                nq += 1
+                changed = True
+    for k in range(nq):  # integrate in reverse order of discovery
+        quad[k] = order[nq - 1 - k]
+    nc = 0
+    for j in range(n):
+        if not inq[j]:
+            core[nc] = j
+            nc += 1
+    for i in range(8):
+        mdt[i] = 0.0
+    mdt[0] = MODE_NONE
+    mdt[4] = MODE_NONE
+    for i in range(4):
+        fn_eig[i] = -1
+    if nc == 0 or nc > 4:
+        return nc, nq, False, 0.0
+    Ac = np.zeros((nc, nc), dtype=np.complex128)
+    for a in range(nc):
+        for b in range(nc):
+            Ac[a, b] = A[core[a], core[b]]
+    w, vec = np.linalg.eig(Ac)
+    vinv = np.linalg.inv(vec)
+    scale = 0.0
+    for k in range(nc):
+        scale = max(scale, abs(w[k]))
+    ok = scale > 0.0
+    for k in range(nc):
+        if abs(w[k]) <= 1e-9 * scale:
+            ok = False
+        c1 = 0.0
+        c2 = 0.0
+        for a in range(nc):
+            c1 += abs(vec[a, k]) ** 2
+            c2 += abs(vinv[k, a]) ** 2
+        if math.sqrt(c1 * c2) > EIG_COND_MAX:
+            ok = False
+    for a in range(4):
+        lam[a] = 0.0
+        for b in range(4):
+            V[a, b] = 0.0
+            Vi[a, b] = 0.0
+    for a in range(nc):
+        lam[a] = w[a]
+        for b in range(nc):
+            V[a, b] = vec[a, b]
+            Vi[a, b] = vinv[a, b]
+    # slots: a complex pair (Im > 0 taken) fills an oscillator slot; real eigenvalues pair up
+    slot = 0
+    reals = np.zeros(4, dtype=np.int64)
+    nr = 0
+    for k in range(nc):
+        im = w[k].imag
+        if abs(im) > 1e-12 * scale:
+            if im > 0.0:
+                if slot > 1:
+                    return nc, nq, False, scale
+                o = 4 * slot
+                mdt[o] = MODE_OSC
+                mdt[o + 1] = w[k].real
+                mdt[o + 2] = -im * im
+                mdt[o + 3] = im
+                fn_eig[2 * slot] = k
+                fn_eig[2 * slot + 1] = k
+                slot += 1
+        else:
+            reals[nr] = k
+            nr += 1
+    r = 0
+    while r < nr:
+        if slot > 1:
+            return nc, nq, False, scale
+        o = 4 * slot
+        mdt[o] = MODE_REAL
+        mdt[o + 1] = w[reals[r]].real
+        fn_eig[2 * slot] = reals[r]
+        if r + 1 < nr:
+            mdt[o + 2] = w[reals[r + 1]].real
+            fn_eig[2 * slot + 1] = reals[r + 1]
+        else:
+            mdt[o + 2] = mdt[o + 1]
+        slot += 1
+        r += 2
+    return nc, nq, ok, scale
+
+
+@njit(cache=True)
+def _add_modal(coef, core, nc, V, alpha, lam, mdt, fn_eig):
+    """Add the modal part ``V diag(e^{lambda tau}) alpha`` to the core rows of coef, written on the
+    real slot functions (a complex pair: 2 Re and -2 Im omega on e^{sigma tau} cos, sin/omega)."""
+    for f in range(4):
+        k = fn_eig[f]
+        if k < 0:
+            continue
+        col = B_M1 + f if f < 2 else B_M2 + f - 2
+        osc = mdt[0] == MODE_OSC if f < 2 else mdt[4] == MODE_OSC
+        for a in range(nc):
+            beta = V[a, k] * alpha[k]
+            if osc:
+                if f % 2 == 0:
+                    coef[core[a], col] += 2.0 * beta.real
+                else:
+                    coef[core[a], col] += -2.0 * beta.imag * lam[k].imag
+            else:
+                coef[core[a], col] += beta.real
+
+
+@njit(cache=True)
+def setup_general(A, b0, bc, Om, s0, u0, core, nc, quad, nq, lam, V, Vi, mdt, fn_eig, coef, md, work):
+    """Fill coef (rows R_*) and md of a general linear mode from its decomposition
+    (:func:`mode_decompose`) and the start state u0 = [x_r, v_r, X_c, V_c, d] at time s0 in the
+    period: the core is the particular solution of the constant and harmonic forcing plus
+    ``V e^{Lambda tau} V^-1 delta_0``; each quadrature is the exact antiderivative of its row."""
+    for i in range(8):
+        md[i] = mdt[i]
+    for i in range(N_ROWS):
+        for j in range(NB):
+            coef[i, j] = 0.0
+    # particular solution on the core: P0 = -A^-1 b0, Z = (i Om - A)^-1 bc  (z_p = P0 + Re(Z e^{i Om s}))
+    cb0 = np.zeros(4, dtype=np.complex128)
+    cbc = np.zeros(4, dtype=np.complex128)
+    for k in range(nc):
+        t0 = 0.0 + 0.0j
+        t1 = 0.0 + 0.0j
+        for a in range(nc):
+            t0 += Vi[k, a] * b0[core[a]]
+            t1 += Vi[k, a] * bc[core[a]]
+        cb0[k] = -t0 / lam[k]
+        cb1 = t1 / (1j * Om - lam[k]) if t1 != 0.0 else 0.0j
+        cbc[k] = cb1
+    ph = Om * s0
+    e0 = math.cos(ph) + 1j * math.sin(ph)
+    delta = np.zeros(4, dtype=np.complex128)
+    for a in range(nc):
+        P0 = 0.0
+        Z = 0.0j
+        for k in range(nc):
+            P0 += (V[a, k] * cb0[k]).real
+            Z += V[a, k] * cbc[k]
+        i = core[a]
+        coef[i, B_ONE] = P0
+        coef[i, B_COS] = Z.real
+        coef[i, B_SIN] = -Z.imag
+        delta[a] = u0[i] - (P0 + (Z * e0).real)
+    alpha = np.zeros(4, dtype=np.complex128)
+    for it in range(2):
+        # second pass: one step of iterative refinement on the start values, so that the rows start
+        # at u0 to rounding (an event surface the mode starts on is then seen as such)
+        for k in range(nc):
+            t = 0.0j
+            for a in range(nc):
+                t += Vi[k, a] * delta[a]
+            alpha[k] = t
+        _add_modal(coef, core, nc, V, alpha, lam, mdt, fn_eig)
+        for a in range(nc):
+            i = core[a]
+            v0 = coef[i, B_ONE] + coef[i, B_COS] * e0.real + coef[i, B_SIN] * e0.imag + coef[i, B_M1]
+            if mdt[0] == MODE_REAL:
+                v0 += coef[i, B_M1 + 1]
+            if mdt[4] != MODE_NONE:
+                v0 += coef[i, B_M2]
+                if mdt[4] == MODE_REAL:
+                    v0 += coef[i, B_M2 + 1]
+            delta[a] = u0[i] - v0
+    # quadratures
+    for q in range(nq):
+        i = quad[q]
+        for j in range(NB):
+            work[j] = 0.0
+        for jv in range(N_ROWS):
+            a = A[i, jv]
+            if a != 0.0:
+                for j in range(NB):
+                    work[j] += a * coef[jv, j]
+        work[B_ONE] += b0[i]
+        work[B_COS] += bc[i]
+        antideriv_coefs(work, md, Om, s0, u0[i], coef[i])
+
+
+@njit(cache=True)
+def general_events(p, gm, sg, tilt_on, coef, md, Om, evc, evcode, evtol, ne, tol_v, tol_F, work):
+    """Append the shell/patch event functions of a general linear mode to evc (inside-positive,
+    exact basis combinations); return the new count.
+
+    Slip: its end ``sg V_c = 0`` and, with a held speed law, ``|V_c| = V_min``. Stuck patch: the
+    breakaway ``|k_s d + c_s V_c| = P_b (1 + kappa x_r / G_1)``. Sliding patch: its stop, patch speed
+    ``V_p = V_c - d' = 0``. With tilt, the level's factor crossing zero (EV_TILT: the level is held
+    at zero beyond it, physics.md section 3)."""
+    G1 = p[I_G1]
+    if gm == GM_PSTICK:
+        if p[I_PB] < np.inf:
+            kq = p[I_PB] * p[I_KAP] / G1
+            for j in range(NB):
+                F = p[I_KS] * coef[R_D, j] + p[I_CS] * coef[R_VC, j]
+                evc[ne, j] = -F + kq * coef[R_XR, j]
+                evc[ne + 1, j] = F + kq * coef[R_XR, j]
+            evc[ne, B_ONE] += p[I_PB]
+            evc[ne + 1, B_ONE] += p[I_PB]
+            evcode[ne] = EV_BREAK_POS
+            evcode[ne + 1] = EV_BREAK_NEG
+            evtol[ne] = tol_F
+            evtol[ne + 1] = tol_F
+            ne += 2
+        return ne
+    if gm == GM_PSLIDE and p[I_CS] > 0.0:
+        deriv_coefs(coef[R_D], md, Om, work)
+        for j in range(NB):
+            evc[ne, j] = sg * (coef[R_VC, j] - work[j])
+    else:
+        for j in range(NB):
+            evc[ne, j] = sg * coef[R_VC, j]
+    evcode[ne] = EV_SLIP_END
+    evtol[ne] = tol_v
+    ne += 1
+    if gm == GM_SLIP and p[I_VFAST] < np.inf:
+        for j in range(NB):
+            evc[ne, j] = -sg * coef[R_VC, j]
+        evc[ne, B_ONE] += p[I_VFAST]
+        evcode[ne] = EV_FAST_ON
+        evtol[ne] = tol_v
+        ne += 1
+    if p[I_KAP] != 0.0:
+        side = 1.0 if tilt_on else -1.0
+        for j in range(NB):
+            evc[ne, j] = side * p[I_KAP] / G1 * coef[R_XR, j]
+        evc[ne, B_ONE] += side
+        evcode[ne] = EV_TILT
+        evtol[ne] = 1e-13
+        ne += 1
+    return ne
+
+
+@njit(cache=True)
+def gl_friction(p, coef, md, Om, s0, tau1, h, gm, sg, tilt_on, dd, B, acc):
+    """Add the substrate's dissipation over [0, tau1] of a general linear mode (Gauss-Legendre):
+    friction ``(L0 + L1 x_r) |V_p|``, drag ``c_v V_c^2`` and the patch damper ``c_s (V_c - V_p)^2``
+    (V_p = V_c on a rigid wall; 0 for a stuck patch)."""
+    if tau1 <= 0.0:
+        return
+    L0, L1 = friction_row(p, tilt_on)
+    cv = p[I_CV]
+    cs = p[I_CS]
+    slide_damped = gm == GM_PSLIDE and cs > 0.0
+    if slide_damped:
+        deriv_coefs(coef[R_D], md, Om, dd)
+    npieces = int(math.ceil(tau1 / h))
+    if npieces < 1:
+        npieces = 1
+    dt = tau1 / npieces
+    for k in range(npieces):
+        a = k * dt
+        for q in range(5):
+            t = a + 0.5 * dt * (GL_X[q] + 1.0)
+            basis(t, s0, md, Om, B)
+            Vc = dot7(coef[R_VC], B)
+            x = dot7(coef[R_XR], B)
+            wq = 0.5 * dt * GL_W[q]
+            if gm == GM_PSTICK:
+                dis = (cs + cv) * Vc * Vc
+            else:
+                Vp = Vc
+                if slide_damped:
+                    Vp = Vc - dot7(dd, B)
+                dis = (L0 + L1 * x) * sg * Vp + cv * Vc * Vc + cs * (Vc - Vp) * (Vc - Vp)
+            acc[E_FRIC] += wq * dis
+
+
+@njit(cache=True)
+def refine_root(c, dc, a, b, s0, md, Om, B):
     """Return the first tau in (a, b] just past the root of g = c.B, given g(a) >= 0 > g(b).
 
     Safeguarded Newton-bisection on the closed form; the returned point lies on the
     'outside' (g < 0) side within a few ulp of the root.
     """
-    basis(a, s0, sig, disc, w, Om, B)
+    basis(a, s0, md, Om, B)
     ga = dot7(c, B)
     if ga < 0.0:
         return a
-    basis(b, s0, sig, disc, w, Om, B)
+    basis(b, s0, md, Om, B)
     gb = dot7(c, B)
     x = b
     if gb != ga:
@@ -384,7 +849,7 @@ def refine_root(c, dc, a, b, s0, sig, disc, w, Om, B):
         tolx = 4.0 * EPS * (abs(s0) + abs(b)) + 1e-300
         if b - a <= tolx:
             break
-        basis(x, s0, sig, disc, w, Om, B)
+        basis(x, s0, md, Om, B)
         g = dot7(c, B)
         dg = dot7(dc, B)
         if g >= 0.0:
@@ -398,7 +863,7 @@ def refine_root(c, dc, a, b, s0, sig, disc, w, Om, B):
                 # close the bracket from the inside: test a point just past the root
                 xo = x + 2.0 * tolx
                 if xo < b:
-                    basis(xo, s0, sig, disc, w, Om, B)
+                    basis(xo, s0, md, Om, B)
                     if dot7(c, B) < 0.0:
                         b = xo
                         break
@@ -411,7 +876,7 @@ def refine_root(c, dc, a, b, s0, sig, disc, w, Om, B):
 
 
 @njit(cache=True)
-def gl_energy(p, coef, contact, shell, s0, tau1, h, sig, disc, w, Om, fe_level, B, acc):
+def gl_energy(p, coef, contact, shell, s0, tau1, h, md, Om, fe_level, B, acc):
     """Add drive work and viscous dissipation over [0, tau1] of a linear segment (Gauss-Legendre)."""
     if tau1 <= 0.0:
         return
@@ -426,7 +891,7 @@ def gl_energy(p, coef, contact, shell, s0, tau1, h, sig, disc, w, Om, fe_level, 
         a = k * dt
         for q in range(5):
             t = a + 0.5 * dt * (GL_X[q] + 1.0)
-            basis(t, s0, sig, disc, w, Om, B)
+            basis(t, s0, md, Om, B)
             vr = dot7(coef[1], B)
             Vc = dot7(coef[3], B)
             fe = drive_force(p, s0 + t, fe_level)
@@ -567,7 +1032,7 @@ def dense_eval(rc, th, out):
 
 
 @njit(cache=True)
-def rk_event_value(p, contact, sgn, j, y):
+def rk_event_value(p, contact, sgn, vlo, vhi, j, y):
     """Inside-positive event functions of an adaptive segment (j: 0 contact a, 1 contact b, 2 V_min or
     slip end; with substrate compliance 2/3 the patch's breakaway + / -, or 2 the patch's stop)."""
     G1 = p[I_G1]
@@ -583,9 +1048,9 @@ def rk_event_value(p, contact, sgn, j, y):
             return sgn * (y[2] - (sgn * friction_level(p, 0.0, y[0]) - p[I_KS] * y[8]) / p[I_CS])
         return sgn * y[2]
     if j == 3:
-        return 1.0
+        return vhi - sgn * y[2] if vhi < np.inf else 1.0
     if j == 2:
-        return sgn * y[2] - p[I_VFAST]
+        return sgn * y[2] - vlo
     if contact == 0:
         if j == 0:
             return G1 - y[0]
@@ -656,12 +1121,13 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     energy = np.zeros(6)
     final = np.zeros(6)
 
-    coef = np.zeros((4, NB))
-    evc = np.zeros((4, NB))
-    devc = np.zeros((4, NB))
-    ddevc = np.zeros((4, NB))
-    evcode = np.zeros(4, dtype=np.int64)
-    evtol = np.zeros(4)
+    coef = np.zeros((N_ROWS, NB))
+    md = np.zeros(8)
+    evc = np.zeros((6, NB))
+    devc = np.zeros((6, NB))
+    ddevc = np.zeros((6, NB))
+    evcode = np.zeros(6, dtype=np.int64)
+    evtol = np.zeros(6)
     cF = np.zeros(NB)
     dcF = np.zeros(NB)
     ddcF = np.zeros(NB)
@@ -669,8 +1135,29 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     negdc = np.zeros(NB)
     B = np.zeros(NB)
     Bs = np.zeros(NB)
-    ga = np.zeros(4)
-    dga = np.zeros(4)
+    ga = np.zeros(6)
+    dga = np.zeros(6)
+    # general linear modes: the system and, per mode (contact x slip/patch state x tilt level), its
+    # eigen-decomposition, computed once per run
+    gA = np.zeros((N_ROWS, N_ROWS))
+    gb0 = np.zeros(N_ROWS)
+    gbc = np.zeros(N_ROWS)
+    gu0 = np.zeros(N_ROWS)
+    gwork = np.zeros(NB)
+    eff_slip = p[I_CV] > 0.0 or p[I_KAP] != 0.0
+    ncache = N_GM_KEYS if (eff_slip or p[I_KS] > 0.0) else 1
+    c_done = np.zeros(ncache, dtype=np.int64)
+    c_ok = np.zeros(ncache, dtype=np.int64)
+    c_nc = np.zeros(ncache, dtype=np.int64)
+    c_nq = np.zeros(ncache, dtype=np.int64)
+    c_scale = np.zeros(ncache)
+    c_core = np.zeros((ncache, 4), dtype=np.int64)
+    c_quad = np.zeros((ncache, N_ROWS), dtype=np.int64)
+    c_lam = np.zeros((ncache, 4), dtype=np.complex128)
+    c_V = np.zeros((ncache, 4, 4), dtype=np.complex128)
+    c_Vi = np.zeros((ncache, 4, 4), dtype=np.complex128)
+    c_mdt = np.zeros((ncache, 8))
+    c_fneig = np.zeros((ncache, 4), dtype=np.int64)
     # RK work arrays
     y = np.zeros(NY)
     y1 = np.zeros(NY)
@@ -757,9 +1244,59 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
         seg_stick = shell == STICK or shell == PATCH_STICK
         Xc_seg0 = Xc
 
-        if shell <= SLIP_NEG:
+        # which path: the base closed form (one modal slot), a general linear mode (effects: drag,
+        # tilt, substrate compliance; eigen-decomposition), or the adaptive segment (speed law above
+        # V_min, literal law, or a general mode whose eigenvectors are nearly defective)
+        lin_base = shell == STICK or ((shell == SLIP_POS or shell == SLIP_NEG) and not eff_slip)
+        lin_gen = False
+        gmode = GM_SLIP
+        sgm = 0.0
+        if not lin_base:
+            if shell == SLIP_POS or shell == SLIP_NEG:
+                gmode = GM_SLIP
+                sgm = 1.0 if shell == SLIP_POS else -1.0
+                lin_gen = True
+            elif compliant and shell == PATCH_STICK:
+                gmode = GM_PSTICK
+                lin_gen = True
+            elif compliant and p[I_LAW] < 0.5:
+                gmode = GM_PSLIDE
+                sgm = 1.0 if shell == FAST_POS else -1.0
+                lin_gen = True
+        if lin_gen:
+            tilt_on = p[I_KAP] == 0.0 or 1.0 + p[I_KAP] * xr / G1 > 0.0
+            if gmode == GM_SLIP:
+                mk = 0 if sgm > 0.0 else 1
+            elif gmode == GM_PSTICK:
+                mk = 2
+            else:
+                mk = 3 if sgm > 0.0 else 4
+            key = contact * 10 + mk * 2 + (0 if tilt_on else 1)
+            mode_system(p, contact, gmode, sgm, tilt_on, fe_level, gA, gb0, gbc)
+            if c_done[key] == 0:
+                nc_, nq_, ok_, sc_ = mode_decompose(gA, c_core[key], c_quad[key], c_lam[key], c_V[key],
+                                                    c_Vi[key], c_mdt[key], c_fneig[key])
+                c_done[key] = 1
+                c_ok[key] = 1 if ok_ else 0
+                c_nc[key] = nc_
+                c_nq[key] = nq_
+                c_scale[key] = sc_
+            lin_gen = c_ok[key] == 1
+        if lin_base or lin_gen:
             # ---------------- linear closed-form segment
-            sig, disc, w, wmax, Om = setup_linear(p, contact, shell, s, xr, vr, Xc, Vc, fe_level, coef)
+            if lin_base:
+                wmax, Om = setup_linear(p, contact, shell, s, xr, vr, Xc, Vc, fe_level, coef, md)
+                coef[R_D, B_ONE] = dsub
+            else:
+                Om = TWO_PI * f if harmonic else 0.0
+                gu0[R_XR] = xr
+                gu0[R_VR] = vr
+                gu0[R_XC] = Xc
+                gu0[R_VC] = Vc
+                gu0[R_D] = dsub
+                setup_general(gA, gb0, gbc, Om, s, gu0, c_core[key], c_nc[key], c_quad[key], c_nq[key],
+                              c_lam[key], c_V[key], c_Vi[key], c_mdt[key], c_fneig[key], coef, md, gwork)
+                wmax = max(c_scale[key], Om)
             h = TWO_PI / wmax / nper
             # events of this mode
             ne = 0
@@ -794,7 +1331,10 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             for j in range(NB):
                 cF[j] = K * coef[0, j] + Cd * coef[1, j]
             cF[4] += F0
-            if shell == STICK:
+            if lin_gen:
+                ne = general_events(p, gmode, sgm, tilt_on, coef, md, Om, evc, evcode, evtol, ne, tol_v, tol_F,
+                                    gwork)
+            elif shell == STICK:
                 if p[I_PB] < np.inf:
                     for j in range(NB):
                         evc[ne, j] = -cF[j]
@@ -827,12 +1367,12 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                     evtol[ne] = tol_v
                     ne += 1
             for e in range(ne):
-                deriv_coefs(evc[e], sig, disc, Om, devc[e])
-                deriv_coefs(devc[e], sig, disc, Om, ddevc[e])
-            deriv_coefs(cF, sig, disc, Om, dcF)
-            deriv_coefs(dcF, sig, disc, Om, ddcF)
+                deriv_coefs(evc[e], md, Om, devc[e])
+                deriv_coefs(devc[e], md, Om, ddevc[e])
+            deriv_coefs(cF, md, Om, dcF)
+            deriv_coefs(dcF, md, Om, ddcF)
             # scan
-            basis(0.0, s, sig, disc, w, Om, B)
+            basis(0.0, s, md, Om, B)
             for e in range(ne):
                 ga[e] = dot7(evc[e], B)
                 dga[e] = dot7(devc[e], B)
@@ -844,7 +1384,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             ta = 0.0
             while True:
                 tb = min(ta + h, tau_end)
-                basis(tb, s, sig, disc, w, Om, B)
+                basis(tb, s, md, Om, B)
                 best = tb + 1.0
                 best_e = -1
                 for e in range(ne):
@@ -853,7 +1393,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                     r = -1.0
                     if gb < 0.0:
                         if ga[e] > evtol[e] or (ta > 0.0 and ga[e] >= 0.0):
-                            r = refine_root(evc[e], devc[e], ta, tb, s, sig, disc, w, Om, Bs)
+                            r = refine_root(evc[e], devc[e], ta, tb, s, md, Om, Bs)
                         else:
                             # a mode start on the event surface (|g| at rounding level, maybe g' ~ 0
                             # too, as at a Coulomb threshold): probe geometrically for the first point
@@ -862,9 +1402,9 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                             r = ta
                             for kk in range(48):
                                 tk = ta + (tb - ta) * 2.0 ** (kk - 47)
-                                basis(tk, s, sig, disc, w, Om, Bs)
+                                basis(tk, s, md, Om, Bs)
                                 if dot7(evc[e], Bs) > evtol[e]:
-                                    r = refine_root(evc[e], devc[e], tk, tb, s, sig, disc, w, Om, Bs)
+                                    r = refine_root(evc[e], devc[e], tk, tb, s, md, Om, Bs)
                                     break
                     elif dgb > 0.0 and (dga[e] < 0.0 or (ta == 0.0 and abs(dga[e]) <= 1e-9 * dgb)):
                         # an interior minimum of g (grazing). A mode that starts with g' ~ 0 (a slip
@@ -878,17 +1418,17 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                             t0m = -1.0
                             for kk in range(48):
                                 tk = ta + (tb - ta) * 2.0 ** (kk - 47)
-                                basis(tk, s, sig, disc, w, Om, Bs)
+                                basis(tk, s, md, Om, Bs)
                                 if dot7(devc[e], Bs) < 0.0:
                                     t0m = tk
                                     break
                         m = tb
                         if t0m >= 0.0:
-                            m = refine_root(negc, negdc, t0m, tb, s, sig, disc, w, Om, Bs)
-                        basis(m, s, sig, disc, w, Om, Bs)
+                            m = refine_root(negc, negdc, t0m, tb, s, md, Om, Bs)
+                        basis(m, s, md, Om, Bs)
                         gm = dot7(evc[e], Bs)
                         if gm < -evtol[e]:
-                            r = refine_root(evc[e], devc[e], ta, m, s, sig, disc, w, Om, Bs)
+                            r = refine_root(evc[e], devc[e], ta, m, s, md, Om, Bs)
                     if r >= 0.0 and r < best:
                         best = r
                         best_e = e
@@ -906,14 +1446,14 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                     if ((dFa > 0.0 and dFb < 0.0) or (dFa < 0.0 and dFb > 0.0)) and \
                             min(abs(Fa) + abs(dFa) * hc, abs(Fb) + abs(dFb) * hc) > maxF:
                         if dFa > 0.0:
-                            m = refine_root(dcF, ddcF, ta, tb, s, sig, disc, w, Om, Bs)
+                            m = refine_root(dcF, ddcF, ta, tb, s, md, Om, Bs)
                         else:
                             for j in range(NB):
                                 negc[j] = -dcF[j]
                                 negdc[j] = -ddcF[j]
-                            m = refine_root(negc, negdc, ta, tb, s, sig, disc, w, Om, Bs)
+                            m = refine_root(negc, negdc, ta, tb, s, md, Om, Bs)
                         if m <= t_stop:
-                            basis(m, s, sig, disc, w, Om, Bs)
+                            basis(m, s, md, Om, Bs)
                             Fm = abs(dot7(cF, Bs))
                             if Fm > maxF:
                                 maxF = Fm
@@ -931,11 +1471,12 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                     break
                 ta = tb
             # end state
-            basis(tau_ev, s, sig, disc, w, Om, B)
+            basis(tau_ev, s, md, Om, B)
             xr1 = dot7(coef[0], B)
             vr1 = dot7(coef[1], B)
             Xc1 = dot7(coef[2], B)
             Vc1 = dot7(coef[3], B)
+            d1 = dot7(coef[R_D], B)
             if recording:
                 F1 = abs(K * xr1 + Cd * vr1 + F0)
                 if F1 > maxF:
@@ -950,7 +1491,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                     tt = ts - s
                     if tt < 0.0:
                         tt = 0.0
-                    basis(tt, s, sig, disc, w, Om, Bs)
+                    basis(tt, s, md, Om, Bs)
                     sx = dot7(coef[0], Bs)
                     sv = dot7(coef[1], Bs)
                     sXc = dot7(coef[2], Bs)
@@ -963,20 +1504,28 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                     row[S_VC] = sVc
                     row[S_XR] = sx
                     row[S_CONTACT] = contact
-                    row[S_STICK] = 1.0 if shell == STICK else 0.0
+                    row[S_STICK] = 1.0 if seg_stick else 0.0
                     row[S_FI] = K * sx + Cd * sv + F0
                     j_sample += 1
             if recording and do_energy:
-                gl_energy(p, coef, contact, shell, s, tau_ev, h, sig, disc, w, Om, fe_level, Bs, energy)
-                if shell != STICK:
+                gl_energy(p, coef, contact, shell, s, tau_ev, h, md, Om, fe_level, Bs, energy)
+                if lin_gen:
+                    gl_friction(p, coef, md, Om, s, tau_ev, h, gmode, sgm, tilt_on, gwork, Bs, energy)
+                elif shell != STICK:
                     energy[E_FRIC] += p[I_L0] * abs(Xc1 - Xc_seg0)
             xr = xr1
             vr = vr1
             Xc = Xc1
             Vc = 0.0 if shell == STICK else Vc1
+            dsub = d1
         else:
-            # ---------------- fast slip: speed-dependent law, DOPRI5 with dense output
-            sg = 1.0 if shell == FAST_POS else -1.0
+            # ---------------- adaptive segment: speed-dependent law above V_min (DOPRI5, dense output)
+            sg = 1.0 if (shell == FAST_POS or shell == SLIP_POS) else -1.0
+            # a slip (not fast) mode here is a general linear mode with nearly defective eigenvectors:
+            # its events are the slip's end (V_c = 0) and V_min
+            rk_slow = shell == SLIP_POS or shell == SLIP_NEG
+            vlo = 0.0 if rk_slow else p[I_VFAST]
+            vhi = p[I_VFAST] if rk_slow else np.inf
             w0 = math.sqrt(K * (1.0 / Mm + 1.0 / Mc))
             wmax = w0
             if harmonic:
@@ -1003,7 +1552,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             nsteps = 0
             g0 = np.zeros(4)
             for j in range(4):
-                g0[j] = rk_event_value(p, contact, sg, j, y)
+                g0[j] = rk_event_value(p, contact, sg, vlo, vhi, j, y)
             Fa = K * y[0] + Cd * y[1] + F0
             dFa = K * k1[0] + Cd * k1[1]
             while True:
@@ -1053,7 +1602,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                 th_ev = 2.0
                 e_ev = -1
                 for j in range(4):
-                    g1 = rk_event_value(p, contact, sg, j, y1)
+                    g1 = rk_event_value(p, contact, sg, vlo, vhi, j, y1)
                     lo = 0.0
                     hi = -1.0
                     if g1 < 0.0:
@@ -1069,15 +1618,15 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                                 mth = 0.5 * (a_ + b_)
                                 # derivative from the interpolant (central difference)
                                 dense_eval(rc, min(mth + 1e-7, 1.0), yd)
-                                gp = rk_event_value(p, contact, sg, j, yd)
+                                gp = rk_event_value(p, contact, sg, vlo, vhi, j, yd)
                                 dense_eval(rc, max(mth - 1e-7, 0.0), yd)
-                                gm_ = rk_event_value(p, contact, sg, j, yd)
+                                gm_ = rk_event_value(p, contact, sg, vlo, vhi, j, yd)
                                 if gp - gm_ < 0.0:
                                     a_ = mth
                                 else:
                                     b_ = mth
                             dense_eval(rc, 0.5 * (a_ + b_), yd)
-                            if rk_event_value(p, contact, sg, j, yd) < -tol_x:
+                            if rk_event_value(p, contact, sg, vlo, vhi, j, yd) < -tol_x:
                                 hi = 0.5 * (a_ + b_)
                     if hi > 0.0:
                         a_ = lo
@@ -1085,7 +1634,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                         for _ in range(80):
                             mth = 0.5 * (a_ + b_)
                             dense_eval(rc, mth, yd)
-                            if rk_event_value(p, contact, sg, j, yd) >= 0.0:
+                            if rk_event_value(p, contact, sg, vlo, vhi, j, yd) >= 0.0:
                                 a_ = mth
                             else:
                                 b_ = mth
@@ -1157,7 +1706,9 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                         else:
                             ev = EV_SLIP_END
                     elif e_ev == 2:
-                        ev = EV_FAST_OFF
+                        ev = EV_SLIP_END if rk_slow else EV_FAST_OFF
+                    elif e_ev == 3:
+                        ev = EV_FAST_ON
                     elif contact == 0:
                         ev = EV_FRONT_ON if e_ev == 0 else EV_BACK_ON
                     elif contact == 1:

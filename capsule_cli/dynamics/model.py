@@ -360,8 +360,9 @@ def pack_params(model: CapsuleModel, drive: Drive, friction: Friction) -> np.nda
         p[E.I_KS] = 1.0 / model.compliance_m_N
         p[E.I_CS] = model.substrate_damping_Ns_m
     # slips faster than I_VFAST go on the adaptive path: above V_min for a held speed law; every
-    # slip when the resisting force varies within a slip (literal law, drag, tilt); never for Coulomb
-    rk_all = (speed_law and friction.literal) or model.drag_Ns_m > 0 or model.tilt_kappa != 0 or compliant
+    # slip under the literal law (no held level); never for Coulomb. Drag, tilt and substrate
+    # compliance keep the modes linear: the engine solves them exactly (general linear modes).
+    rk_all = speed_law and friction.literal
     p[E.I_VFAST] = 0.0 if rk_all else (vmin if speed_law else math.inf)
     mu = model.mass_magnet_kg * model.mass_capsule_kg / (model.mass_magnet_kg + model.mass_capsule_kg)
     xs = max(model.gap_m, drive.amplitude_N / model.spring_N_m, 1e-6)
