@@ -60,8 +60,8 @@ I_KS, I_CS = 28, 29
 N_PARAMS = 30
 
 # options vector
-O_NPER, O_ENERGY, O_RTOL, O_ZENO, O_MAXSTEPS = 0, 1, 2, 3, 4
-N_OPTS = 5
+O_NPER, O_ENERGY, O_RTOL, O_ZENO, O_MAXSTEPS, O_EXACT = 0, 1, 2, 3, 4, 5
+N_OPTS = 6
 
 # shell states
 STICK, SLIP_POS, SLIP_NEG, FAST_POS, FAST_NEG = 0, 1, 2, 3, 4
@@ -1098,6 +1098,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     nper = opts[O_NPER]
     do_energy = opts[O_ENERGY] > 0.5
     zeno_max = int(opts[O_ZENO])
+    exact_general = opts[O_EXACT] > 0.5
     max_steps = int(opts[O_MAXSTEPS])
     rtol = opts[O_RTOL]
     f = p[I_F]
@@ -1251,7 +1252,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
         lin_gen = False
         gmode = GM_SLIP
         sgm = 0.0
-        if not lin_base:
+        if not lin_base and exact_general:
             if shell == SLIP_POS or shell == SLIP_NEG:
                 gmode = GM_SLIP
                 sgm = 1.0 if shell == SLIP_POS else -1.0
@@ -1264,7 +1265,12 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                 sgm = 1.0 if shell == FAST_POS else -1.0
                 lin_gen = True
         if lin_gen:
-            tilt_on = p[I_KAP] == 0.0 or 1.0 + p[I_KAP] * xr / G1 > 0.0
+            # the tilt level is active where 1 + kappa x_r / G_1 > 0; on the zero itself (a mode
+            # starting at EV_TILT) the direction of x_r decides
+            tilt_on = True
+            if p[I_KAP] != 0.0:
+                fac0 = 1.0 + p[I_KAP] * xr / G1
+                tilt_on = fac0 > 1e-13 or (fac0 > -1e-13 and p[I_KAP] * vr > 0.0)
             if gmode == GM_SLIP:
                 mk = 0 if sgm > 0.0 else 1
             elif gmode == GM_PSTICK:

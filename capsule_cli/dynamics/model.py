@@ -378,13 +378,16 @@ def pack_params(model: CapsuleModel, drive: Drive, friction: Friction) -> np.nda
 class EngineOptions:
     """Numerical options: samples_per_fast_period (bracketing grid, 1/N of the fastest modal
     period), energy (accumulate the energy balance), rk_rtol (fast-slip DOPRI5), zeno_max
-    (zero-length events tolerated in a row), rk_max_steps (per segment)."""
+    (zero-length events tolerated in a row), rk_max_steps (per segment), exact_general_modes
+    (solve the linear modes of drag, tilt and substrate compliance exactly; False integrates them on
+    the adaptive path, a cross-check)."""
 
     samples_per_fast_period: float = 8.0
     energy: bool = True
     rk_rtol: float = 1e-11
     zeno_max: int = 200
     rk_max_steps: int = 2_000_000
+    exact_general_modes: bool = True
     extra: dict = field(default_factory=dict)
 
     def pack(self) -> np.ndarray:
@@ -394,4 +397,5 @@ class EngineOptions:
         o[E.O_RTOL] = self.rk_rtol
         o[E.O_ZENO] = self.zeno_max
         o[E.O_MAXSTEPS] = self.rk_max_steps
+        o[E.O_EXACT] = 1.0 if self.exact_general_modes else 0.0
         return o
