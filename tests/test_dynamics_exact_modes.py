@@ -94,7 +94,7 @@ def test_general_mode_rows_satisfy_their_equations():
     Vi = np.zeros((4, 4), complex)
     mdt = np.zeros(8)
     fne = np.zeros(4, np.int64)
-    nc, nq, ok, scale = E.mode_decompose(A, core, quad, lam, V, Vi, mdt, fne)
+    nc, nq, ok, scale, slow = E.mode_decompose(A, core, quad, lam, V, Vi, mdt, fne)
     assert ok and nc == 4 and nq == 1 and list(quad[:1]) == [E.R_XC]
     u0 = np.array([1.1e-3, 0.02, 3e-4, -0.01, 1.2e-6])
     coef = np.zeros((5, E.NB))

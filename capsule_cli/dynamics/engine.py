@@ -540,7 +540,8 @@ def mode_decompose(A, core, quad, lam, V, Vi, mdt, fn_eig):
     (X_c always; V_c without drag or patch; d when constant). quad lists them in the order they
     must be integrated. mdt: the modal slots of :func:`basis`; fn_eig[i]: the eigenvalue of slot
     function i (-1 unused). ok is False for a singular or nearly defective core (eigenvector
-    condition above EIG_COND_MAX): the mode then goes to the adaptive path.
+    condition above EIG_COND_MAX): the mode then goes to the adaptive path. wmax_modal is the
+    largest |eigenvalue|; a fifth value, the slow scale, ignores the faster real eigenvalues.
     """
     n = A.shape[0]
     inq = np.zeros(n, dtype=np.bool_)
@@ -576,7 +577,7 @@ def mode_decompose(A, core, quad, lam, V, Vi, mdt, fn_eig):
     for i in range(4):
         fn_eig[i] = -1
     if nc == 0 or nc > 4:
-        return nc, nq, False, 0.0
+        return nc, nq, False, 0.0, 0.0
     Ac = np.zeros((nc, nc), dtype=np.complex128)
     for a in range(nc):
         for b in range(nc):
@@ -616,7 +617,7 @@ def mode_decompose(A, core, quad, lam, V, Vi, mdt, fn_eig):
         if abs(im) > 1e-12 * scale:
             if im > 0.0:
                 if slot > 1:
-                    return nc, nq, False, scale
+                    return nc, nq, False, scale, scale
                 o = 4 * slot
                 mdt[o] = MODE_OSC
                 mdt[o + 1] = w[k].real
@@ -631,7 +632,7 @@ def mode_decompose(A, core, quad, lam, V, Vi, mdt, fn_eig):
     r = 0
     while r < nr:
         if slot > 1:
-            return nc, nq, False, scale
+            return nc, nq, False, scale, scale
         o = 4 * slot
         mdt[o] = MODE_REAL
         mdt[o + 1] = w[reals[r]].real
@@ -643,7 +644,19 @@ def mode_decompose(A, core, quad, lam, V, Vi, mdt, fn_eig):
             mdt[o + 2] = mdt[o + 1]
         slot += 1
         r += 2
-    return nc, nq, ok, scale
+    # the slow scale: the fastest oscillatory mode (or the slowest real one if none oscillates); a
+    # faster real mode only shapes the start of a segment: the scan's cells grow from the fast
+    # scale to the slow one
+    slow = 0.0
+    rmin = np.inf
+    for k in range(nc):
+        if abs(w[k].imag) > 1e-12 * scale:
+            slow = max(slow, abs(w[k]))
+        else:
+            rmin = min(rmin, abs(w[k]))
+    if slow == 0.0:
+        slow = rmin
+    return nc, nq, ok, scale, slow
 
 
 @njit(cache=True)
@@ -793,7 +806,7 @@ def general_events(p, gm, sg, tilt_on, coef, md, Om, evc, evcode, evtol, ne, tol
 
 
 @njit(cache=True)
-def gl_friction(p, coef, md, Om, s0, tau1, h, gm, sg, tilt_on, dd, B, acc):
+def gl_friction(p, coef, md, Om, s0, tau1, h, h_slow, gm, sg, tilt_on, dd, B, acc):
     """Add the substrate's dissipation over [0, tau1] of a general linear mode (Gauss-Legendre):
     friction ``(L0 + L1 x_r) |V_p|``, drag ``c_v V_c^2`` and the patch damper ``c_s (V_c - V_p)^2``
     (V_p = V_c on a rigid wall; 0 for a stuck patch)."""
@@ -809,8 +822,20 @@ def gl_friction(p, coef, md, Om, s0, tau1, h, gm, sg, tilt_on, dd, B, acc):
     if npieces < 1:
         npieces = 1
     dt = tau1 / npieces
+    graded = h_slow > h
+    if graded:
+        dt = h
+        npieces = 1 << 30
+    a = 0.0
     for k in range(npieces):
-        a = k * dt
+        if graded:
+            if a >= tau1:
+                break
+            if k > 0:
+                dt = min(2.0 * dt, h_slow)
+            dt = min(dt, tau1 - a)
+        else:
+            a = k * dt
         for q in range(5):
             t = a + 0.5 * dt * (GL_X[q] + 1.0)
             basis(t, s0, md, Om, B)
@@ -825,6 +850,8 @@ def gl_friction(p, coef, md, Om, s0, tau1, h, gm, sg, tilt_on, dd, B, acc):
                     Vp = Vc - dot7(dd, B)
                 dis = (L0 + L1 * x) * sg * Vp + cv * Vc * Vc + cs * (Vc - Vp) * (Vc - Vp)
             acc[E_FRIC] += wq * dis
+        if graded:
+            a += dt
 
 
 @njit(cache=True)
@@ -876,7 +903,7 @@ def refine_root(c, dc, a, b, s0, md, Om, B):
 
 
 @njit(cache=True)
-def gl_energy(p, coef, contact, shell, s0, tau1, h, md, Om, fe_level, B, acc):
+def gl_energy(p, coef, contact, shell, s0, tau1, h, h_slow, md, Om, fe_level, B, acc):
     """Add drive work and viscous dissipation over [0, tau1] of a linear segment (Gauss-Legendre)."""
     if tau1 <= 0.0:
         return
@@ -887,8 +914,20 @@ def gl_energy(p, coef, contact, shell, s0, tau1, h, md, Om, fe_level, B, acc):
     if npieces < 1:
         npieces = 1
     dt = tau1 / npieces
+    graded = h_slow > h
+    if graded:
+        dt = h
+        npieces = 1 << 30
+    a = 0.0
     for k in range(npieces):
-        a = k * dt
+        if graded:
+            if a >= tau1:
+                break
+            if k > 0:
+                dt = min(2.0 * dt, h_slow)
+            dt = min(dt, tau1 - a)
+        else:
+            a = k * dt
         for q in range(5):
             t = a + 0.5 * dt * (GL_X[q] + 1.0)
             basis(t, s0, md, Om, B)
@@ -899,6 +938,8 @@ def gl_energy(p, coef, contact, shell, s0, tau1, h, md, Om, fe_level, B, acc):
             acc[E_DRIVE] += wq * fe * (Vc + vr)
             acc[E_DAMP] += wq * cs * vr * vr
             acc[E_CONTACT] += wq * cc * vr * vr
+        if graded:
+            a += dt
 
 
 # ---------------------------------------------------------------------------
@@ -1152,6 +1193,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     c_nc = np.zeros(ncache, dtype=np.int64)
     c_nq = np.zeros(ncache, dtype=np.int64)
     c_scale = np.zeros(ncache)
+    c_slow = np.zeros(ncache)
     c_core = np.zeros((ncache, 4), dtype=np.int64)
     c_quad = np.zeros((ncache, N_ROWS), dtype=np.int64)
     c_lam = np.zeros((ncache, 4), dtype=np.complex128)
@@ -1280,13 +1322,14 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             key = contact * 10 + mk * 2 + (0 if tilt_on else 1)
             mode_system(p, contact, gmode, sgm, tilt_on, fe_level, gA, gb0, gbc)
             if c_done[key] == 0:
-                nc_, nq_, ok_, sc_ = mode_decompose(gA, c_core[key], c_quad[key], c_lam[key], c_V[key],
+                nc_, nq_, ok_, sc_, sl_ = mode_decompose(gA, c_core[key], c_quad[key], c_lam[key], c_V[key],
                                                     c_Vi[key], c_mdt[key], c_fneig[key])
                 c_done[key] = 1
                 c_ok[key] = 1 if ok_ else 0
                 c_nc[key] = nc_
                 c_nq[key] = nq_
                 c_scale[key] = sc_
+                c_slow[key] = sl_
             lin_gen = c_ok[key] == 1
         if lin_base or lin_gen:
             # ---------------- linear closed-form segment
@@ -1304,6 +1347,11 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                               c_lam[key], c_V[key], c_Vi[key], c_mdt[key], c_fneig[key], coef, md, gwork)
                 wmax = max(c_scale[key], Om)
             h = TWO_PI / wmax / nper
+            # scan cells: from h (the fastest mode) doubling to h_slow (a fast real mode has decayed)
+            h_slow = h
+            if lin_gen:
+                h_slow = TWO_PI / max(c_slow[key], Om, 1e-300) / nper
+                h_slow = min(max(h_slow, h), tau_end)
             # events of this mode
             ne = 0
             if contact == 0:
@@ -1388,8 +1436,9 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                 maxF = abs(Fa)
                 t_maxF = period * T + s
             ta = 0.0
+            hcell = h
             while True:
-                tb = min(ta + h, tau_end)
+                tb = min(ta + hcell, tau_end)
                 basis(tb, s, md, Om, B)
                 best = tb + 1.0
                 best_e = -1
@@ -1476,6 +1525,8 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                 if tb >= tau_end:
                     break
                 ta = tb
+                if hcell < h_slow:
+                    hcell = min(2.0 * hcell, h_slow)
             # end state
             basis(tau_ev, s, md, Om, B)
             xr1 = dot7(coef[0], B)
@@ -1514,9 +1565,9 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                     row[S_FI] = K * sx + Cd * sv + F0
                     j_sample += 1
             if recording and do_energy:
-                gl_energy(p, coef, contact, shell, s, tau_ev, h, md, Om, fe_level, Bs, energy)
+                gl_energy(p, coef, contact, shell, s, tau_ev, h, h_slow, md, Om, fe_level, Bs, energy)
                 if lin_gen:
-                    gl_friction(p, coef, md, Om, s, tau_ev, h, gmode, sgm, tilt_on, gwork, Bs, energy)
+                    gl_friction(p, coef, md, Om, s, tau_ev, h, h_slow, gmode, sgm, tilt_on, gwork, Bs, energy)
                 elif shell != STICK:
                     energy[E_FRIC] += p[I_L0] * abs(Xc1 - Xc_seg0)
             xr = xr1
