@@ -237,51 +237,62 @@ def decide_shell(p, contact, xr, vr, fe):
 
 
 @njit(cache=True)
-def slot_fill(kind, a, b, c, tau, B, i):
-    """Fill B[i], B[i+1] with one modal slot of a linear mode at segment time tau.
-
-    kind MODE_OSC: ``e^{a tau} C(tau)``, ``e^{a tau} S(tau)`` with a = sigma, b = discriminant,
-    c = sqrt|b| (C, S = cos, sin/w; cosh, sinh/w; 1, tau by the sign of b);
-    kind MODE_REAL: ``e^{a tau}``, ``e^{b tau}`` (two real eigenvalues); MODE_NONE: zeros.
-    """
-    if kind == MODE_OSC:
-        e = math.exp(a * tau)
-        if b < 0.0:
-            B[i] = e * math.cos(c * tau)
-            B[i + 1] = e * math.sin(c * tau) / c
-        elif b > 0.0:
-            B[i] = e * math.cosh(c * tau)
-            B[i + 1] = e * math.sinh(c * tau) / c
-        else:
-            B[i] = e
-            B[i + 1] = e * tau
-    elif kind == MODE_REAL:
-        B[i] = math.exp(a * tau)
-        B[i + 1] = math.exp(b * tau)
-    else:
-        B[i] = 0.0
-        B[i + 1] = 0.0
-
-
-@njit(cache=True)
 def basis(tau, s0, md, Om, B):
     """Fill B with the NB basis functions of a linear mode at segment time tau.
 
     Layout: [slot 1 (2), cos(Om s), sin(Om s), 1, tau, tau^2, slot 2 (2)] with s = s0 + tau; the
-    slots are described by md = [kind1, a1, b1, c1, kind2, a2, b2, c2] (:func:`slot_fill`).
+    slots are described by md = [kind1, a1, b1, c1, kind2, a2, b2, c2]: kind MODE_OSC
+    ``e^{a tau} C(tau), e^{a tau} S(tau)`` with a = sigma, b = discriminant, c = sqrt|b| (C, S =
+    cos, sin/c; cosh, sinh/c; 1, tau by the sign of b); MODE_REAL ``e^{a tau}, e^{b tau}`` (two real
+    eigenvalues); MODE_NONE zeros. A leaf function (no calls with array arguments, which cost
+    reference counting) so that it inlines into the scan: the hot path.
     """
-    slot_fill(md[0], md[1], md[2], md[3], tau, B, B_M1)
-    ph = Om * (s0 + tau)
-    B[B_COS] = math.cos(ph)
-    B[B_SIN] = math.sin(ph)
-    B[B_ONE] = 1.0
-    B[B_T] = tau
-    B[B_T2] = tau * tau
-    if md[4] == MODE_NONE:
-        B[B_M2] = 0.0
-        B[B_M2 + 1] = 0.0
+    k = md[0]
+    if k == MODE_OSC:
+        e = math.exp(md[1] * tau)
+        disc = md[2]
+        w = md[3]
+        if disc < 0.0:
+            B[0] = e * math.cos(w * tau)
+            B[1] = e * math.sin(w * tau) / w
+        elif disc > 0.0:
+            B[0] = e * math.cosh(w * tau)
+            B[1] = e * math.sinh(w * tau) / w
+        else:
+            B[0] = e
+            B[1] = e * tau
+    elif k == MODE_REAL:
+        B[0] = math.exp(md[1] * tau)
+        B[1] = math.exp(md[2] * tau)
     else:
-        slot_fill(md[4], md[5], md[6], md[7], tau, B, B_M2)
+        B[0] = 0.0
+        B[1] = 0.0
+    ph = Om * (s0 + tau)
+    B[2] = math.cos(ph)
+    B[3] = math.sin(ph)
+    B[4] = 1.0
+    B[5] = tau
+    B[6] = tau * tau
+    k = md[4]
+    if k == MODE_OSC:
+        e = math.exp(md[5] * tau)
+        disc = md[6]
+        w = md[7]
+        if disc < 0.0:
+            B[7] = e * math.cos(w * tau)
+            B[8] = e * math.sin(w * tau) / w
+        elif disc > 0.0:
+            B[7] = e * math.cosh(w * tau)
+            B[8] = e * math.sinh(w * tau) / w
+        else:
+            B[7] = e
+            B[8] = e * tau
+    elif k == MODE_REAL:
+        B[7] = math.exp(md[5] * tau)
+        B[8] = math.exp(md[6] * tau)
+    else:
+        B[7] = 0.0
+        B[8] = 0.0
 
 
 @njit(cache=True)
@@ -292,29 +303,33 @@ def dot7(c, B):
 
 
 @njit(cache=True)
-def _slot_deriv(kind, a, b, c, out, i):
-    if kind == MODE_OSC:
-        c0 = c[i]
-        out[i] = a * c0 + c[i + 1]
-        out[i + 1] = b * c0 + a * c[i + 1]
-    elif kind == MODE_REAL:
-        out[i] = a * c[i]
-        out[i + 1] = b * c[i + 1]
-    else:
-        out[i] = 0.0
-        out[i + 1] = 0.0
-
-
-@njit(cache=True)
 def deriv_coefs(c, md, Om, out):
-    """Coefficients of d/dtau of a basis combination."""
-    _slot_deriv(md[0], md[1], md[2], c, out, B_M1)
+    """Coefficients of d/dtau of a basis combination (a leaf function: slots written out)."""
+    k = md[0]
+    if k == MODE_OSC:
+        out[0] = md[1] * c[0] + c[1]
+        out[1] = md[2] * c[0] + md[1] * c[1]
+    elif k == MODE_REAL:
+        out[0] = md[1] * c[0]
+        out[1] = md[2] * c[1]
+    else:
+        out[0] = 0.0
+        out[1] = 0.0
     out[B_COS] = Om * c[B_SIN]
     out[B_SIN] = -Om * c[B_COS]
     out[B_ONE] = c[B_T]
     out[B_T] = 2.0 * c[B_T2]
     out[B_T2] = 0.0
-    _slot_deriv(md[4], md[5], md[6], c, out, B_M2)
+    k = md[4]
+    if k == MODE_OSC:
+        out[7] = md[5] * c[7] + c[8]
+        out[8] = md[6] * c[7] + md[5] * c[8]
+    elif k == MODE_REAL:
+        out[7] = md[5] * c[7]
+        out[8] = md[6] * c[8]
+    else:
+        out[7] = 0.0
+        out[8] = 0.0
 
 
 @njit(cache=True)
@@ -806,6 +821,19 @@ def general_events(p, gm, sg, tilt_on, coef, md, Om, evc, evcode, evtol, ne, tol
 
 
 @njit(cache=True)
+def gl_graded_count(tau1, h, h_slow):
+    """Number of quadrature pieces over [0, tau1] starting at h and doubling up to h_slow."""
+    n = 0
+    a = 0.0
+    dt = h
+    while a < tau1:
+        a += dt
+        dt = min(2.0 * dt, h_slow)
+        n += 1
+    return max(n, 1)
+
+
+@njit(cache=True)
 def gl_friction(p, coef, md, Om, s0, tau1, h, h_slow, gm, sg, tilt_on, dd, B, acc):
     """Add the substrate's dissipation over [0, tau1] of a general linear mode (Gauss-Legendre):
     friction ``(L0 + L1 x_r) |V_p|``, drag ``c_v V_c^2`` and the patch damper ``c_s (V_c - V_p)^2``
@@ -818,22 +846,23 @@ def gl_friction(p, coef, md, Om, s0, tau1, h, h_slow, gm, sg, tilt_on, dd, B, ac
     slide_damped = gm == GM_PSLIDE and cs > 0.0
     if slide_damped:
         deriv_coefs(coef[R_D], md, Om, dd)
+    # pieces of h, or growing from h to h_slow (a fast real mode)
+    graded = h_slow > h
     npieces = int(math.ceil(tau1 / h))
     if npieces < 1:
         npieces = 1
     dt = tau1 / npieces
-    graded = h_slow > h
     if graded:
+        npieces = gl_graded_count(tau1, h, h_slow)
         dt = h
-        npieces = 1 << 30
     a = 0.0
     for k in range(npieces):
         if graded:
-            if a >= tau1:
-                break
             if k > 0:
+                a += dt
                 dt = min(2.0 * dt, h_slow)
-            dt = min(dt, tau1 - a)
+            if k == npieces - 1:
+                dt = tau1 - a
         else:
             a = k * dt
         for q in range(5):
@@ -850,8 +879,6 @@ def gl_friction(p, coef, md, Om, s0, tau1, h, h_slow, gm, sg, tilt_on, dd, B, ac
                     Vp = Vc - dot7(dd, B)
                 dis = (L0 + L1 * x) * sg * Vp + cv * Vc * Vc + cs * (Vc - Vp) * (Vc - Vp)
             acc[E_FRIC] += wq * dis
-        if graded:
-            a += dt
 
 
 @njit(cache=True)
@@ -910,22 +937,23 @@ def gl_energy(p, coef, contact, shell, s0, tau1, h, h_slow, md, Om, fe_level, B,
     K, C, F0 = contact_terms(p, contact)
     cs = p[I_C]
     cc = C - cs
+    # pieces of h, or growing from h to h_slow (a fast real mode)
+    graded = h_slow > h
     npieces = int(math.ceil(tau1 / h))
     if npieces < 1:
         npieces = 1
     dt = tau1 / npieces
-    graded = h_slow > h
     if graded:
+        npieces = gl_graded_count(tau1, h, h_slow)
         dt = h
-        npieces = 1 << 30
     a = 0.0
     for k in range(npieces):
         if graded:
-            if a >= tau1:
-                break
             if k > 0:
+                a += dt
                 dt = min(2.0 * dt, h_slow)
-            dt = min(dt, tau1 - a)
+            if k == npieces - 1:
+                dt = tau1 - a
         else:
             a = k * dt
         for q in range(5):
@@ -938,8 +966,6 @@ def gl_energy(p, coef, contact, shell, s0, tau1, h, h_slow, md, Om, fe_level, B,
             acc[E_DRIVE] += wq * fe * (Vc + vr)
             acc[E_DAMP] += wq * cs * vr * vr
             acc[E_CONTACT] += wq * cc * vr * vr
-        if graded:
-            a += dt
 
 
 # ---------------------------------------------------------------------------
