@@ -45,7 +45,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, objmode, prange
 
 # ---------------------------------------------------------------------------
 # parameter vector (SI), built by capsule_cli.dynamics.model.pack_params
@@ -296,10 +296,53 @@ def basis(tau, s0, md, Om, B):
 
 
 @njit(cache=True)
-def dot7(c, B):
+def dot9(c, B):
     """Value of the basis combination with coefficients c (all NB functions)."""
     return (c[0] * B[0] + c[1] * B[1] + c[2] * B[2] + c[3] * B[3] + c[4] * B[4] + c[5] * B[5] + c[6] * B[6]
             + c[7] * B[7] + c[8] * B[8])
+
+
+@njit(cache=True)
+def basis_base(tau, s0, md, Om, B):
+    """:func:`basis` for a base mode (one oscillator slot, slot 2 unused: B[7], B[8] stay 0)."""
+    e = math.exp(md[1] * tau)
+    disc = md[2]
+    w = md[3]
+    if disc < 0.0:
+        C = math.cos(w * tau)
+        S = math.sin(w * tau) / w
+    elif disc > 0.0:
+        C = math.cosh(w * tau)
+        S = math.sinh(w * tau) / w
+    else:
+        C = 1.0
+        S = tau
+    B[0] = e * C
+    B[1] = e * S
+    ph = Om * (s0 + tau)
+    B[2] = math.cos(ph)
+    B[3] = math.sin(ph)
+    B[4] = 1.0
+    B[5] = tau
+    B[6] = tau * tau
+
+
+@njit(cache=True)
+def dot_base(c, B):
+    """:func:`dot9` over the first seven functions (a base mode)."""
+    return c[0] * B[0] + c[1] * B[1] + c[2] * B[2] + c[3] * B[3] + c[4] * B[4] + c[5] * B[5] + c[6] * B[6]
+
+
+@njit(cache=True)
+def deriv_base(c, md, Om, out):
+    """:func:`deriv_coefs` for a base mode (one oscillator slot)."""
+    out[0] = md[1] * c[0] + c[1]
+    out[1] = md[2] * c[0] + md[1] * c[1]
+    out[2] = Om * c[3]
+    out[3] = -Om * c[2]
+    out[4] = c[5]
+    out[5] = 2.0 * c[6]
+    out[6] = 0.0
 
 
 @njit(cache=True)
@@ -593,12 +636,18 @@ def mode_decompose(A, core, quad, lam, V, Vi, mdt, fn_eig):
         fn_eig[i] = -1
     if nc == 0 or nc > 4:
         return nc, nq, False, 0.0, 0.0
-    Ac = np.zeros((nc, nc), dtype=np.complex128)
+    Ac = np.zeros((nc, nc))
     for a in range(nc):
         for b in range(nc):
             Ac[a, b] = A[core[a], core[b]]
-    w, vec = np.linalg.eig(Ac)
-    vinv = np.linalg.inv(vec)
+    # LAPACK through numpy in object mode: np.linalg in nopython mode would keep the engine from
+    # being cached (its LAPACK pointers are dynamic globals); once per mode per run
+    with objmode(w='complex128[:]', vec='complex128[:,:]', vinv='complex128[:,:]'):
+        w, vec = np.linalg.eig(Ac)
+        vinv = np.linalg.inv(vec)
+        w = np.ascontiguousarray(w, dtype=np.complex128)
+        vec = np.ascontiguousarray(vec, dtype=np.complex128)
+        vinv = np.ascontiguousarray(vinv, dtype=np.complex128)
     scale = 0.0
     for k in range(nc):
         scale = max(scale, abs(w[k]))
@@ -868,15 +917,15 @@ def gl_friction(p, coef, md, Om, s0, tau1, h, h_slow, gm, sg, tilt_on, dd, B, ac
         for q in range(5):
             t = a + 0.5 * dt * (GL_X[q] + 1.0)
             basis(t, s0, md, Om, B)
-            Vc = dot7(coef[R_VC], B)
-            x = dot7(coef[R_XR], B)
+            Vc = dot9(coef[R_VC], B)
+            x = dot9(coef[R_XR], B)
             wq = 0.5 * dt * GL_W[q]
             if gm == GM_PSTICK:
                 dis = (cs + cv) * Vc * Vc
             else:
                 Vp = Vc
                 if slide_damped:
-                    Vp = Vc - dot7(dd, B)
+                    Vp = Vc - dot9(dd, B)
                 dis = (L0 + L1 * x) * sg * Vp + cv * Vc * Vc + cs * (Vc - Vp) * (Vc - Vp)
             acc[E_FRIC] += wq * dis
 
@@ -889,11 +938,11 @@ def refine_root(c, dc, a, b, s0, md, Om, B):
     'outside' (g < 0) side within a few ulp of the root.
     """
     basis(a, s0, md, Om, B)
-    ga = dot7(c, B)
+    ga = dot9(c, B)
     if ga < 0.0:
         return a
     basis(b, s0, md, Om, B)
-    gb = dot7(c, B)
+    gb = dot9(c, B)
     x = b
     if gb != ga:
         x = a + (b - a) * ga / (ga - gb)
@@ -904,8 +953,8 @@ def refine_root(c, dc, a, b, s0, md, Om, B):
         if b - a <= tolx:
             break
         basis(x, s0, md, Om, B)
-        g = dot7(c, B)
-        dg = dot7(dc, B)
+        g = dot9(c, B)
+        dg = dot9(dc, B)
         if g >= 0.0:
             a = x
         else:
@@ -918,7 +967,58 @@ def refine_root(c, dc, a, b, s0, md, Om, B):
                 xo = x + 2.0 * tolx
                 if xo < b:
                     basis(xo, s0, md, Om, B)
-                    if dot7(c, B) < 0.0:
+                    if dot9(c, B) < 0.0:
+                        b = xo
+                        break
+            if not (a < xn < b):
+                xn = 0.5 * (a + b)
+        else:
+            xn = 0.5 * (a + b)
+        x = xn
+    return b
+
+
+
+@njit(cache=True)
+def refine_root_base(c, dc, a, b, s0, md, Om, B):
+    """:func:`refine_root` on the seven-function basis of a base mode (the hot path).
+
+    Return the first tau in (a, b] just past the root of g = c.B, given g(a) >= 0 > g(b).
+
+    Safeguarded Newton-bisection on the closed form; the returned point lies on the
+    'outside' (g < 0) side within a few ulp of the root.
+    """
+    basis_base(a, s0, md, Om, B)
+    ga = dot_base(c, B)
+    if ga < 0.0:
+        return a
+    basis_base(b, s0, md, Om, B)
+    gb = dot_base(c, B)
+    x = b
+    if gb != ga:
+        x = a + (b - a) * ga / (ga - gb)
+    if not (a < x < b):
+        x = 0.5 * (a + b)
+    for _ in range(100):
+        tolx = 4.0 * EPS * (abs(s0) + abs(b)) + 1e-300
+        if b - a <= tolx:
+            break
+        basis_base(x, s0, md, Om, B)
+        g = dot_base(c, B)
+        dg = dot_base(dc, B)
+        if g >= 0.0:
+            a = x
+        else:
+            b = x
+        if dg != 0.0:
+            xn = x - g / dg
+            step = abs(xn - x)
+            if step < tolx and g >= 0.0:
+                # close the bracket from the inside: test a point just past the root
+                xo = x + 2.0 * tolx
+                if xo < b:
+                    basis_base(xo, s0, md, Om, B)
+                    if dot_base(c, B) < 0.0:
                         b = xo
                         break
             if not (a < xn < b):
@@ -959,8 +1059,8 @@ def gl_energy(p, coef, contact, shell, s0, tau1, h, h_slow, md, Om, fe_level, B,
         for q in range(5):
             t = a + 0.5 * dt * (GL_X[q] + 1.0)
             basis(t, s0, md, Om, B)
-            vr = dot7(coef[1], B)
-            Vc = dot7(coef[3], B)
+            vr = dot9(coef[1], B)
+            Vc = dot9(coef[3], B)
             fe = drive_force(p, s0 + t, fe_level)
             wq = 0.5 * dt * GL_W[q]
             acc[E_DRIVE] += wq * fe * (Vc + vr)
@@ -1131,6 +1231,124 @@ def rk_event_value(p, contact, sgn, vlo, vhi, j, y):
 
 # ---------------------------------------------------------------------------
 # the run
+
+
+@njit(cache=True)
+def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, tau_end, h, h_slow,
+                 recording, maxF, t_maxF, t_off, B, Bs, ga, dga, negc, negdc):
+    """Find the first event of a general linear mode within (0, tau_end] and the extrema of F_i
+    before it; return (event code or EV_NONE, its time tau, max |F_i|, its global time).
+
+    The same scan as the base modes' (written inline in :func:`run_core_at` on the seven-function
+    basis, the benchmark's hot path, where a call would cost 20 %): event functions bracketed on cells
+    growing from h to h_slow, grazing minima caught by the sign change of g', crossings refined on
+    the exact expressions by :func:`refine_root`; t_off is the period's start time.
+    """
+    ev = EV_NONE
+    tau_ev = tau_end
+    # scan
+    basis(0.0, s, md, Om, B)
+    for e in range(ne):
+        ga[e] = dot9(evc[e], B)
+        dga[e] = dot9(devc[e], B)
+    Fa = dot9(cF, B)
+    dFa = dot9(dcF, B)
+    if recording and abs(Fa) > maxF:
+        maxF = abs(Fa)
+        t_maxF = t_off + s
+    ta = 0.0
+    hcell = h
+    while True:
+        tb = min(ta + hcell, tau_end)
+        basis(tb, s, md, Om, B)
+        best = tb + 1.0
+        best_e = -1
+        for e in range(ne):
+            gb = dot9(evc[e], B)
+            dgb = dot9(devc[e], B)
+            r = -1.0
+            if gb < 0.0:
+                if ga[e] > evtol[e] or (ta > 0.0 and ga[e] >= 0.0):
+                    r = refine_root(evc[e], devc[e], ta, tb, s, md, Om, Bs)
+                else:
+                    # a mode start on the event surface (|g| at rounding level, maybe g' ~ 0
+                    # too, as at a Coulomb threshold): probe geometrically for the first point
+                    # clearly inside, then bracket the crossing from there; none -> a genuine
+                    # immediate exit.
+                    r = ta
+                    for kk in range(48):
+                        tk = ta + (tb - ta) * 2.0 ** (kk - 47)
+                        basis(tk, s, md, Om, Bs)
+                        if dot9(evc[e], Bs) > evtol[e]:
+                            r = refine_root(evc[e], devc[e], tk, tb, s, md, Om, Bs)
+                            break
+            elif dgb > 0.0 and (dga[e] < 0.0 or (ta == 0.0 and abs(dga[e]) <= 1e-9 * dgb)):
+                # an interior minimum of g (grazing). A mode that starts with g' ~ 0 (a slip
+                # from a friction threshold: V_c' = 0) has g' of either sign at rounding
+                # level at ta: probe geometrically for the first point where g' < 0.
+                for j in range(NB):
+                    negc[j] = -devc[e, j]
+                    negdc[j] = -ddevc[e, j]
+                t0m = ta
+                if dga[e] >= 0.0:
+                    t0m = -1.0
+                    for kk in range(48):
+                        tk = ta + (tb - ta) * 2.0 ** (kk - 47)
+                        basis(tk, s, md, Om, Bs)
+                        if dot9(devc[e], Bs) < 0.0:
+                            t0m = tk
+                            break
+                m = tb
+                if t0m >= 0.0:
+                    m = refine_root(negc, negdc, t0m, tb, s, md, Om, Bs)
+                basis(m, s, md, Om, Bs)
+                gm = dot9(evc[e], Bs)
+                if gm < -evtol[e]:
+                    r = refine_root(evc[e], devc[e], ta, m, s, md, Om, Bs)
+            if r >= 0.0 and r < best:
+                best = r
+                best_e = e
+            ga[e] = gb
+            dga[e] = dgb
+        t_stop = tb if best_e < 0 else best
+        # extrema of F_i within [ta, t_stop]
+        if recording:
+            Fb = dot9(cF, B)
+            dFb = dot9(dcF, B)
+            # an extremum of F_i inside the cell; refined only if it can beat maxF: with F'
+            # monotone across a cell (1/NPER of the fastest period) |F(m)| <= |F_a| + |F'_a| h
+            # and <= |F_b| + |F'_b| h
+            hc = tb - ta
+            if ((dFa > 0.0 and dFb < 0.0) or (dFa < 0.0 and dFb > 0.0)) and \
+                    min(abs(Fa) + abs(dFa) * hc, abs(Fb) + abs(dFb) * hc) > maxF:
+                if dFa > 0.0:
+                    m = refine_root(dcF, ddcF, ta, tb, s, md, Om, Bs)
+                else:
+                    for j in range(NB):
+                        negc[j] = -dcF[j]
+                        negdc[j] = -ddcF[j]
+                    m = refine_root(negc, negdc, ta, tb, s, md, Om, Bs)
+                if m <= t_stop:
+                    basis(m, s, md, Om, Bs)
+                    Fm = abs(dot9(cF, Bs))
+                    if Fm > maxF:
+                        maxF = Fm
+                        t_maxF = t_off + s + m
+            if best_e < 0 and abs(Fb) > maxF:
+                maxF = abs(Fb)
+                t_maxF = t_off + s + tb
+            Fa = Fb
+            dFa = dFb
+        if best_e >= 0:
+            ev = evcode[best_e]
+            tau_ev = best
+            break
+        if tb >= tau_end:
+            break
+        ta = tb
+        if hcell < h_slow:
+            hcell = min(2.0 * hcell, h_slow)
+    return ev, tau_ev, maxF, t_maxF
 
 
 @njit(cache=True)
@@ -1446,120 +1664,129 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                     evcode[ne] = EV_FAST_ON
                     evtol[ne] = tol_v
                     ne += 1
-            for e in range(ne):
-                deriv_coefs(evc[e], md, Om, devc[e])
-                deriv_coefs(devc[e], md, Om, ddevc[e])
-            deriv_coefs(cF, md, Om, dcF)
-            deriv_coefs(dcF, md, Om, ddcF)
-            # scan
-            basis(0.0, s, md, Om, B)
-            for e in range(ne):
-                ga[e] = dot7(evc[e], B)
-                dga[e] = dot7(devc[e], B)
-            Fa = dot7(cF, B)
-            dFa = dot7(dcF, B)
-            if recording and abs(Fa) > maxF:
-                maxF = abs(Fa)
-                t_maxF = period * T + s
-            ta = 0.0
-            hcell = h
-            while True:
-                tb = min(ta + hcell, tau_end)
-                basis(tb, s, md, Om, B)
-                best = tb + 1.0
-                best_e = -1
+            if lin_gen:
                 for e in range(ne):
-                    gb = dot7(evc[e], B)
-                    dgb = dot7(devc[e], B)
-                    r = -1.0
-                    if gb < 0.0:
-                        if ga[e] > evtol[e] or (ta > 0.0 and ga[e] >= 0.0):
-                            r = refine_root(evc[e], devc[e], ta, tb, s, md, Om, Bs)
-                        else:
-                            # a mode start on the event surface (|g| at rounding level, maybe g' ~ 0
-                            # too, as at a Coulomb threshold): probe geometrically for the first point
-                            # clearly inside, then bracket the crossing from there; none -> a genuine
-                            # immediate exit.
-                            r = ta
-                            for kk in range(48):
-                                tk = ta + (tb - ta) * 2.0 ** (kk - 47)
-                                basis(tk, s, md, Om, Bs)
-                                if dot7(evc[e], Bs) > evtol[e]:
-                                    r = refine_root(evc[e], devc[e], tk, tb, s, md, Om, Bs)
-                                    break
-                    elif dgb > 0.0 and (dga[e] < 0.0 or (ta == 0.0 and abs(dga[e]) <= 1e-9 * dgb)):
-                        # an interior minimum of g (grazing). A mode that starts with g' ~ 0 (a slip
-                        # from a friction threshold: V_c' = 0) has g' of either sign at rounding
-                        # level at ta: probe geometrically for the first point where g' < 0.
-                        for j in range(NB):
-                            negc[j] = -devc[e, j]
-                            negdc[j] = -ddevc[e, j]
-                        t0m = ta
-                        if dga[e] >= 0.0:
-                            t0m = -1.0
-                            for kk in range(48):
-                                tk = ta + (tb - ta) * 2.0 ** (kk - 47)
-                                basis(tk, s, md, Om, Bs)
-                                if dot7(devc[e], Bs) < 0.0:
-                                    t0m = tk
-                                    break
-                        m = tb
-                        if t0m >= 0.0:
-                            m = refine_root(negc, negdc, t0m, tb, s, md, Om, Bs)
-                        basis(m, s, md, Om, Bs)
-                        gm = dot7(evc[e], Bs)
-                        if gm < -evtol[e]:
-                            r = refine_root(evc[e], devc[e], ta, m, s, md, Om, Bs)
-                    if r >= 0.0 and r < best:
-                        best = r
-                        best_e = e
-                    ga[e] = gb
-                    dga[e] = dgb
-                t_stop = tb if best_e < 0 else best
-                # extrema of F_i within [ta, t_stop]
-                if recording:
-                    Fb = dot7(cF, B)
-                    dFb = dot7(dcF, B)
-                    # an extremum of F_i inside the cell; refined only if it can beat maxF: with F'
-                    # monotone across a cell (1/NPER of the fastest period) |F(m)| <= |F_a| + |F'_a| h
-                    # and <= |F_b| + |F'_b| h
-                    hc = tb - ta
-                    if ((dFa > 0.0 and dFb < 0.0) or (dFa < 0.0 and dFb > 0.0)) and \
-                            min(abs(Fa) + abs(dFa) * hc, abs(Fb) + abs(dFb) * hc) > maxF:
-                        if dFa > 0.0:
-                            m = refine_root(dcF, ddcF, ta, tb, s, md, Om, Bs)
-                        else:
+                    deriv_coefs(evc[e], md, Om, devc[e])
+                    deriv_coefs(devc[e], md, Om, ddevc[e])
+                deriv_coefs(cF, md, Om, dcF)
+                deriv_coefs(dcF, md, Om, ddcF)
+            else:
+                for e in range(ne):
+                    deriv_base(evc[e], md, Om, devc[e])
+                    deriv_base(devc[e], md, Om, ddevc[e])
+                deriv_base(cF, md, Om, dcF)
+                deriv_base(dcF, md, Om, ddcF)
+            if lin_gen:
+                ev, tau_ev, maxF, t_maxF = locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om,
+                                                        s, tau_end, h, h_slow, recording, maxF, t_maxF, period * T,
+                                                        B, Bs, ga, dga, negc, negdc)
+            else:
+                # scan
+                basis_base(0.0, s, md, Om, B)
+                for e in range(ne):
+                    ga[e] = dot_base(evc[e], B)
+                    dga[e] = dot_base(devc[e], B)
+                Fa = dot_base(cF, B)
+                dFa = dot_base(dcF, B)
+                if recording and abs(Fa) > maxF:
+                    maxF = abs(Fa)
+                    t_maxF = period * T + s
+                ta = 0.0
+                while True:
+                    tb = min(ta + h, tau_end)
+                    basis_base(tb, s, md, Om, B)
+                    best = tb + 1.0
+                    best_e = -1
+                    for e in range(ne):
+                        gb = dot_base(evc[e], B)
+                        dgb = dot_base(devc[e], B)
+                        r = -1.0
+                        if gb < 0.0:
+                            if ga[e] > evtol[e] or (ta > 0.0 and ga[e] >= 0.0):
+                                r = refine_root_base(evc[e], devc[e], ta, tb, s, md, Om, Bs)
+                            else:
+                                # a mode start on the event surface (|g| at rounding level, maybe g' ~ 0
+                                # too, as at a Coulomb threshold): probe geometrically for the first point
+                                # clearly inside, then bracket the crossing from there; none -> a genuine
+                                # immediate exit.
+                                r = ta
+                                for kk in range(48):
+                                    tk = ta + (tb - ta) * 2.0 ** (kk - 47)
+                                    basis_base(tk, s, md, Om, Bs)
+                                    if dot_base(evc[e], Bs) > evtol[e]:
+                                        r = refine_root_base(evc[e], devc[e], tk, tb, s, md, Om, Bs)
+                                        break
+                        elif dgb > 0.0 and (dga[e] < 0.0 or (ta == 0.0 and abs(dga[e]) <= 1e-9 * dgb)):
+                            # an interior minimum of g (grazing). A mode that starts with g' ~ 0 (a slip
+                            # from a friction threshold: V_c' = 0) has g' of either sign at rounding
+                            # level at ta: probe geometrically for the first point where g' < 0.
                             for j in range(NB):
-                                negc[j] = -dcF[j]
-                                negdc[j] = -ddcF[j]
-                            m = refine_root(negc, negdc, ta, tb, s, md, Om, Bs)
-                        if m <= t_stop:
-                            basis(m, s, md, Om, Bs)
-                            Fm = abs(dot7(cF, Bs))
-                            if Fm > maxF:
-                                maxF = Fm
-                                t_maxF = period * T + s + m
-                    if best_e < 0 and abs(Fb) > maxF:
-                        maxF = abs(Fb)
-                        t_maxF = period * T + s + tb
-                    Fa = Fb
-                    dFa = dFb
-                if best_e >= 0:
-                    ev = evcode[best_e]
-                    tau_ev = best
-                    break
-                if tb >= tau_end:
-                    break
-                ta = tb
-                if hcell < h_slow:
-                    hcell = min(2.0 * hcell, h_slow)
+                                negc[j] = -devc[e, j]
+                                negdc[j] = -ddevc[e, j]
+                            t0m = ta
+                            if dga[e] >= 0.0:
+                                t0m = -1.0
+                                for kk in range(48):
+                                    tk = ta + (tb - ta) * 2.0 ** (kk - 47)
+                                    basis_base(tk, s, md, Om, Bs)
+                                    if dot_base(devc[e], Bs) < 0.0:
+                                        t0m = tk
+                                        break
+                            m = tb
+                            if t0m >= 0.0:
+                                m = refine_root_base(negc, negdc, t0m, tb, s, md, Om, Bs)
+                            basis_base(m, s, md, Om, Bs)
+                            gm = dot_base(evc[e], Bs)
+                            if gm < -evtol[e]:
+                                r = refine_root_base(evc[e], devc[e], ta, m, s, md, Om, Bs)
+                        if r >= 0.0 and r < best:
+                            best = r
+                            best_e = e
+                        ga[e] = gb
+                        dga[e] = dgb
+                    t_stop = tb if best_e < 0 else best
+                    # extrema of F_i within [ta, t_stop]
+                    if recording:
+                        Fb = dot_base(cF, B)
+                        dFb = dot_base(dcF, B)
+                        # an extremum of F_i inside the cell; refined only if it can beat maxF: with F'
+                        # monotone across a cell (1/NPER of the fastest period) |F(m)| <= |F_a| + |F'_a| h
+                        # and <= |F_b| + |F'_b| h
+                        hc = tb - ta
+                        if ((dFa > 0.0 and dFb < 0.0) or (dFa < 0.0 and dFb > 0.0)) and \
+                                min(abs(Fa) + abs(dFa) * hc, abs(Fb) + abs(dFb) * hc) > maxF:
+                            if dFa > 0.0:
+                                m = refine_root_base(dcF, ddcF, ta, tb, s, md, Om, Bs)
+                            else:
+                                for j in range(NB):
+                                    negc[j] = -dcF[j]
+                                    negdc[j] = -ddcF[j]
+                                m = refine_root_base(negc, negdc, ta, tb, s, md, Om, Bs)
+                            if m <= t_stop:
+                                basis_base(m, s, md, Om, Bs)
+                                Fm = abs(dot_base(cF, Bs))
+                                if Fm > maxF:
+                                    maxF = Fm
+                                    t_maxF = period * T + s + m
+                        if best_e < 0 and abs(Fb) > maxF:
+                            maxF = abs(Fb)
+                            t_maxF = period * T + s + tb
+                        Fa = Fb
+                        dFa = dFb
+                    if best_e >= 0:
+                        ev = evcode[best_e]
+                        tau_ev = best
+                        break
+                    if tb >= tau_end:
+                        break
+                    ta = tb
             # end state
             basis(tau_ev, s, md, Om, B)
-            xr1 = dot7(coef[0], B)
-            vr1 = dot7(coef[1], B)
-            Xc1 = dot7(coef[2], B)
-            Vc1 = dot7(coef[3], B)
-            d1 = dot7(coef[R_D], B)
+            xr1 = dot9(coef[0], B)
+            vr1 = dot9(coef[1], B)
+            Xc1 = dot9(coef[2], B)
+            Vc1 = dot9(coef[3], B)
+            d1 = dot9(coef[R_D], B)
             if recording:
                 F1 = abs(K * xr1 + Cd * vr1 + F0)
                 if F1 > maxF:
@@ -1575,10 +1802,10 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                     if tt < 0.0:
                         tt = 0.0
                     basis(tt, s, md, Om, Bs)
-                    sx = dot7(coef[0], Bs)
-                    sv = dot7(coef[1], Bs)
-                    sXc = dot7(coef[2], Bs)
-                    sVc = dot7(coef[3], Bs)
+                    sx = dot9(coef[0], Bs)
+                    sv = dot9(coef[1], Bs)
+                    sXc = dot9(coef[2], Bs)
+                    sVc = dot9(coef[3], Bs)
                     row = samples[j_sample]
                     row[S_T] = rec_t0 + sample_times[j_sample]
                     row[S_XM] = sXc + sx
