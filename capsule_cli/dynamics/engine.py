@@ -31,9 +31,21 @@ basis with a linear map of the coefficients, so events, their extrema (grazing)
 and extrema of F_i are located by bracketing on a grid of 1/NPER of the fastest
 modal period plus Newton-bisection to ~1e-16 s on the exact expressions.
 
+Dynamics effects that keep the modes linear (viscous drag c_v V_c, the tilt level
+L0 (1 + kappa x_r / G_1), substrate compliance: a presliding spring k_s and damper c_s
+to a massless contact patch) make *general linear modes*: ``u' = A u + b0 + bc cos(Om s)``
+with u = [x_r, v_r, X_c, V_c, d]. Each is split into a nonsingular core, solved exactly
+from the eigen-decomposition of its matrix (computed once per mode per run) plus the
+particular solutions of the constant and harmonic forcing, and quadratures (X_c; V_c
+without drag; a constant d) integrated exactly. They are written on a nine-function
+basis (a second modal slot, which may also hold real exponentials); their events
+(slip end, patch breakaway and stop, the tilt level's zero) are root-found the same way,
+on cells that grow from a fast real mode's time scale to the oscillatory one's.
+
 Slip with a speed-dependent law above V_min (eqs 22-23) is the only nonlinear
 mode: a compiled Dormand-Prince 5(4) with dense output integrates that segment
-alone, with the same events.
+alone, with the same events (and a general mode whose eigenvectors are nearly
+defective, as a fallback).
 
 Time is kept as (period index, time within the period) so that the phase of the
 drive and the Poincare section at phase 0 are exact for any run length.
