@@ -31,9 +31,21 @@ basis with a linear map of the coefficients, so events, their extrema (grazing)
 and extrema of F_i are located by bracketing on a grid of 1/NPER of the fastest
 modal period plus Newton-bisection to ~1e-16 s on the exact expressions.
 
+Dynamics effects that keep the modes linear (viscous drag c_v V_c, the tilt level
+L0 (1 + kappa x_r / G_1), substrate compliance: a presliding spring k_s and damper c_s
+to a massless contact patch) make *general linear modes*: ``u' = A u + b0 + bc cos(Om s)``
+with u = [x_r, v_r, X_c, V_c, d]. Each is split into a nonsingular core, solved exactly
+from the eigen-decomposition of its matrix (computed once per mode per run) plus the
+particular solutions of the constant and harmonic forcing, and quadratures (X_c; V_c
+without drag; a constant d) integrated exactly. They are written on a nine-function
+basis (a second modal slot, which may also hold real exponentials); their events
+(slip end, patch breakaway and stop, the tilt level's zero) are root-found the same way,
+on cells that grow from a fast real mode's time scale to the oscillatory one's.
+
 Slip with a speed-dependent law above V_min (eqs 22-23) is the only nonlinear
 mode: a compiled Dormand-Prince 5(4) with dense output integrates that segment
-alone, with the same events.
+alone, with the same events (and a general mode whose eigenvectors are nearly
+defective, as a fallback).
 
 Time is kept as (period index, time within the period) so that the phase of the
 drive and the Poincare section at phase 0 are exact for any run length.
@@ -45,7 +57,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, objmode, prange
 
 # ---------------------------------------------------------------------------
 # parameter vector (SI), built by capsule_cli.dynamics.model.pack_params
@@ -60,8 +72,8 @@ I_KS, I_CS = 28, 29
 N_PARAMS = 30
 
 # options vector
-O_NPER, O_ENERGY, O_RTOL, O_ZENO, O_MAXSTEPS = 0, 1, 2, 3, 4
-N_OPTS = 5
+O_NPER, O_ENERGY, O_RTOL, O_ZENO, O_MAXSTEPS, O_EXACT = 0, 1, 2, 3, 4, 5
+N_OPTS = 6
 
 # shell states
 STICK, SLIP_POS, SLIP_NEG, FAST_POS, FAST_NEG = 0, 1, 2, 3, 4
@@ -73,6 +85,7 @@ PATCH_STICK = 5
 EV_NONE = -1
 EV_FRONT_ON, EV_BACK_ON, EV_FRONT_OFF, EV_BACK_OFF = 1, 2, 3, 4
 EV_BREAK_POS, EV_BREAK_NEG, EV_SLIP_END, EV_FAST_ON, EV_FAST_OFF = 5, 6, 7, 8, 9
+EV_TILT = 10  # the tilt factor of the friction level crosses zero (a general linear mode ends)
 # recorded kinds (the event list)
 K_FRONT_ON, K_FRONT_OFF, K_BACK_ON, K_BACK_OFF = 1, 2, 3, 4
 K_STICK, K_SLIP_FWD, K_SLIP_BWD, K_DRIVE_ON, K_DRIVE_OFF = 5, 6, 7, 8, 9
@@ -91,7 +104,13 @@ N_PERIOD_COLS = 12
 # energy entries
 E_DRIVE, E_DAMP, E_CONTACT, E_FRIC, E_START, E_END = range(6)
 
-NB = 7
+# basis of a linear mode (:func:`basis`): modal slot 1, drive cos/sin, 1, tau, tau^2, modal slot 2
+NB = 9
+B_M1, B_COS, B_SIN, B_ONE, B_T, B_T2, B_M2 = 0, 2, 3, 4, 5, 6, 7
+MODE_OSC, MODE_REAL, MODE_NONE = 0, 1, 2
+# coefficient rows of a linear mode's state
+R_XR, R_VR, R_XC, R_VC, R_D = 0, 1, 2, 3, 4
+N_ROWS = 5
 TWO_PI = 2.0 * math.pi
 EPS = 2.220446049250313e-16
 
@@ -230,9 +249,77 @@ def decide_shell(p, contact, xr, vr, fe):
 
 
 @njit(cache=True)
-def basis(tau, s0, sig, disc, w, Om, B):
-    """Fill B with the seven basis functions at segment time tau."""
-    e = math.exp(sig * tau)
+def basis(tau, s0, md, Om, B):
+    """Fill B with the NB basis functions of a linear mode at segment time tau.
+
+    Layout: [slot 1 (2), cos(Om s), sin(Om s), 1, tau, tau^2, slot 2 (2)] with s = s0 + tau; the
+    slots are described by md = [kind1, a1, b1, c1, kind2, a2, b2, c2]: kind MODE_OSC
+    ``e^{a tau} C(tau), e^{a tau} S(tau)`` with a = sigma, b = discriminant, c = sqrt|b| (C, S =
+    cos, sin/c; cosh, sinh/c; 1, tau by the sign of b); MODE_REAL ``e^{a tau}, e^{b tau}`` (two real
+    eigenvalues); MODE_NONE zeros. A leaf function (no calls with array arguments, which cost
+    reference counting) so that it inlines into the scan: the hot path.
+    """
+    k = md[0]
+    if k == MODE_OSC:
+        e = math.exp(md[1] * tau)
+        disc = md[2]
+        w = md[3]
+        if disc < 0.0:
+            B[0] = e * math.cos(w * tau)
+            B[1] = e * math.sin(w * tau) / w
+        elif disc > 0.0:
+            B[0] = e * math.cosh(w * tau)
+            B[1] = e * math.sinh(w * tau) / w
+        else:
+            B[0] = e
+            B[1] = e * tau
+    elif k == MODE_REAL:
+        B[0] = math.exp(md[1] * tau)
+        B[1] = math.exp(md[2] * tau)
+    else:
+        B[0] = 0.0
+        B[1] = 0.0
+    ph = Om * (s0 + tau)
+    B[2] = math.cos(ph)
+    B[3] = math.sin(ph)
+    B[4] = 1.0
+    B[5] = tau
+    B[6] = tau * tau
+    k = md[4]
+    if k == MODE_OSC:
+        e = math.exp(md[5] * tau)
+        disc = md[6]
+        w = md[7]
+        if disc < 0.0:
+            B[7] = e * math.cos(w * tau)
+            B[8] = e * math.sin(w * tau) / w
+        elif disc > 0.0:
+            B[7] = e * math.cosh(w * tau)
+            B[8] = e * math.sinh(w * tau) / w
+        else:
+            B[7] = e
+            B[8] = e * tau
+    elif k == MODE_REAL:
+        B[7] = math.exp(md[5] * tau)
+        B[8] = math.exp(md[6] * tau)
+    else:
+        B[7] = 0.0
+        B[8] = 0.0
+
+
+@njit(cache=True)
+def dot9(c, B):
+    """Value of the basis combination with coefficients c (all NB functions)."""
+    return (c[0] * B[0] + c[1] * B[1] + c[2] * B[2] + c[3] * B[3] + c[4] * B[4] + c[5] * B[5] + c[6] * B[6]
+            + c[7] * B[7] + c[8] * B[8])
+
+
+@njit(cache=True)
+def basis_base(tau, s0, md, Om, B):
+    """:func:`basis` for a base mode (one oscillator slot, slot 2 unused: B[7], B[8] stay 0)."""
+    e = math.exp(md[1] * tau)
+    disc = md[2]
+    w = md[3]
     if disc < 0.0:
         C = math.cos(w * tau)
         S = math.sin(w * tau) / w
@@ -253,15 +340,16 @@ def basis(tau, s0, sig, disc, w, Om, B):
 
 
 @njit(cache=True)
-def dot7(c, B):
+def dot_base(c, B):
+    """:func:`dot9` over the first seven functions (a base mode)."""
     return c[0] * B[0] + c[1] * B[1] + c[2] * B[2] + c[3] * B[3] + c[4] * B[4] + c[5] * B[5] + c[6] * B[6]
 
 
 @njit(cache=True)
-def deriv_coefs(c, sig, disc, Om, out):
-    """Coefficients of d/dtau of a basis combination."""
-    out[0] = sig * c[0] + c[1]
-    out[1] = disc * c[0] + sig * c[1]
+def deriv_base(c, md, Om, out):
+    """:func:`deriv_coefs` for a base mode (one oscillator slot)."""
+    out[0] = md[1] * c[0] + c[1]
+    out[1] = md[2] * c[0] + md[1] * c[1]
     out[2] = Om * c[3]
     out[3] = -Om * c[2]
     out[4] = c[5]
@@ -270,8 +358,85 @@ def deriv_coefs(c, sig, disc, Om, out):
 
 
 @njit(cache=True)
-def setup_linear(p, contact, shell, s0, xr0, vr0, Xc0, Vc0, fe_level, coef):
-    """Fill coef rows (x_r, v_r, X_c, V_c) of a linear mode; return (sig, disc, w, wmax, Om).
+def deriv_coefs(c, md, Om, out):
+    """Coefficients of d/dtau of a basis combination (a leaf function: slots written out)."""
+    k = md[0]
+    if k == MODE_OSC:
+        out[0] = md[1] * c[0] + c[1]
+        out[1] = md[2] * c[0] + md[1] * c[1]
+    elif k == MODE_REAL:
+        out[0] = md[1] * c[0]
+        out[1] = md[2] * c[1]
+    else:
+        out[0] = 0.0
+        out[1] = 0.0
+    out[B_COS] = Om * c[B_SIN]
+    out[B_SIN] = -Om * c[B_COS]
+    out[B_ONE] = c[B_T]
+    out[B_T] = 2.0 * c[B_T2]
+    out[B_T2] = 0.0
+    k = md[4]
+    if k == MODE_OSC:
+        out[7] = md[5] * c[7] + c[8]
+        out[8] = md[6] * c[7] + md[5] * c[8]
+    elif k == MODE_REAL:
+        out[7] = md[5] * c[7]
+        out[8] = md[6] * c[8]
+    else:
+        out[7] = 0.0
+        out[8] = 0.0
+
+
+@njit(cache=True)
+def _slot_antideriv(kind, a, b, c, out, i):
+    if kind == MODE_OSC:
+        det = a * a - b  # = omega_0^2 > 0 for a nonsingular mode
+        d0 = (a * c[i] - c[i + 1]) / det
+        out[i] = d0
+        out[i + 1] = c[i] - a * d0
+    elif kind == MODE_REAL:
+        out[i] = c[i] / a
+        out[i + 1] = c[i + 1] / b if c[i + 1] != 0.0 else 0.0
+    else:
+        out[i] = 0.0
+        out[i + 1] = 0.0
+
+
+@njit(cache=True)
+def antideriv_coefs(c, md, Om, s0, value0, out):
+    """Coefficients of the antiderivative of a basis combination c that equals value0 at tau = 0.
+
+    c must have no tau^2 term (the quadratures of a linear mode never do); the modal slots are
+    nonsingular (no zero eigenvalue), and a drive term needs Om > 0.
+    """
+    _slot_antideriv(md[0], md[1], md[2], c, out, B_M1)
+    _slot_antideriv(md[4], md[5], md[6], c, out, B_M2)
+    if Om > 0.0:
+        out[B_COS] = -c[B_SIN] / Om
+        out[B_SIN] = c[B_COS] / Om
+    else:
+        out[B_COS] = 0.0
+        out[B_SIN] = 0.0
+    out[B_T2] = 0.5 * c[B_T]
+    out[B_T] = c[B_ONE]
+    out[B_ONE] = 0.0
+    # value at tau = 0 of everything but the constant
+    v = out[B_COS] * math.cos(Om * s0) + out[B_SIN] * math.sin(Om * s0)
+    if md[0] != MODE_NONE:
+        v += out[B_M1]
+        if md[0] == MODE_REAL:
+            v += out[B_M1 + 1]
+    if md[4] != MODE_NONE:
+        v += out[B_M2]
+        if md[4] == MODE_REAL:
+            v += out[B_M2 + 1]
+    out[B_ONE] = value0 - v
+
+
+@njit(cache=True)
+def setup_linear(p, contact, shell, s0, xr0, vr0, Xc0, Vc0, fe_level, coef, md):
+    """Fill coef rows (x_r, v_r, X_c, V_c) and the mode descriptor md of a base linear mode (one
+    modal slot, closed form); return (wmax, Om).
 
     ``shell`` is STICK, SLIP_POS or SLIP_NEG (constant friction level p[I_L0]).
     """
@@ -315,9 +480,14 @@ def setup_linear(p, contact, shell, s0, xr0, vr0, Xc0, Vc0, fe_level, coef):
     vp0 = -Om * Zr * s2 - Om * Zi * c2
     d0 = xr0 - xp0
     d1 = vr0 - vp0
-    for i in range(4):
+    for i in range(N_ROWS):
         for j in range(NB):
             coef[i, j] = 0.0
+    md[0] = MODE_OSC
+    md[1] = sig
+    md[2] = disc
+    md[3] = w
+    md[4] = MODE_NONE
     coef[0, 0] = d0
     coef[0, 1] = d1 - sig * d0
     coef[0, 2] = Zr
@@ -359,22 +529,432 @@ def setup_linear(p, contact, shell, s0, xr0, vr0, Xc0, Vc0, fe_level, coef):
     if disc > 0.0:
         wmax = max(wmax, abs(sig) + w)
     wmax = max(wmax, Om)
-    return sig, disc, w, wmax, Om
+    return wmax, Om
+
+
+# ---------------------------------------------------------------------------
+# general linear modes (dynamics effects): exact solution from the eigen-decomposition
+
+# kinds of general linear mode
+GM_SLIP, GM_PSTICK, GM_PSLIDE = 0, 1, 2
+N_GM_KEYS = 30  # 3 contacts x 5 (slip +/-, patch stick, patch slide +/-) x 2 (tilt level on / held at 0)
+EIG_COND_MAX = 1e8  # eigenvector condition above which a mode is integrated on the adaptive path
 
 
 @njit(cache=True)
-def refine_root(c, dc, a, b, s0, sig, disc, w, Om, B):
+def friction_row(p, tilt_on):
+    """Return (L0, L1) of the constant-level friction force L0 + L1 x_r [N] of a slip (Coulomb, or a
+    speed law held below V_min), with the tilt factor 1 + kappa x_r / G_1 (``tilt_friction``) active
+    (tilt_on) or held at zero."""
+    if p[I_KAP] == 0.0:
+        return p[I_L0], 0.0
+    if tilt_on:
+        return p[I_L0], p[I_L0] * p[I_KAP] / p[I_G1]
+    return 0.0, 0.0
+
+
+@njit(cache=True)
+def mode_system(p, contact, gm, sg, tilt_on, fe_level, A, b0, bc):
+    """Fill the linear system u' = A u + b0 + bc cos(Om s) of a general linear mode.
+
+    u = [x_r, v_r, X_c, V_c, d] (rows R_*; d = presliding spring extension of substrate_compliance).
+    Magnet ``M_m X_m'' = F_e - F_i``; shell ``M_c X_c'' = F_i - F_s - c_v V_c`` with F_s the
+    substrate force: slip (gm GM_SLIP) or patch slide (GM_PSLIDE) ``sg (L0 + L1 x_r)``; patch stuck
+    (GM_PSTICK) ``k_s d + c_s V_c`` (physics.md section 3, dynamics effects; seed 000 eqs 19-21).
+    """
+    for i in range(N_ROWS):
+        b0[i] = 0.0
+        bc[i] = 0.0
+        for j in range(N_ROWS):
+            A[i, j] = 0.0
+    K, C, F0 = contact_terms(p, contact)
+    Mm = p[I_MM]
+    Mc = p[I_MC]
+    L0, L1 = friction_row(p, tilt_on)
+    # shell acceleration a_c
+    A[R_VC, R_XR] = K / Mc
+    A[R_VC, R_VR] = C / Mc
+    A[R_VC, R_VC] = -p[I_CV] / Mc
+    b0[R_VC] = F0 / Mc
+    if gm == GM_PSTICK:
+        A[R_VC, R_D] = -p[I_KS] / Mc
+        A[R_VC, R_VC] -= p[I_CS] / Mc
+        A[R_D, R_VC] = 1.0
+    else:
+        A[R_VC, R_XR] -= sg * L1 / Mc
+        b0[R_VC] -= sg * L0 / Mc
+        if gm == GM_PSLIDE and p[I_CS] > 0.0:
+            A[R_D, R_XR] = sg * L1 / p[I_CS]
+            A[R_D, R_D] = -p[I_KS] / p[I_CS]
+            b0[R_D] = sg * L0 / p[I_CS]
+    # relative acceleration (F_e - F_i) / M_m - a_c
+    A[R_XR, R_VR] = 1.0
+    A[R_VR, R_XR] = -K / Mm - A[R_VC, R_XR]
+    A[R_VR, R_VR] = -C / Mm - A[R_VC, R_VR]
+    A[R_VR, R_VC] = -A[R_VC, R_VC]
+    A[R_VR, R_D] = -A[R_VC, R_D]
+    b0[R_VR] = -F0 / Mm - b0[R_VC]
+    if p[I_WAVE] < 0.5:
+        bc[R_VR] = p[I_PD] / Mm
+    else:
+        b0[R_VR] += fe_level / Mm
+    A[R_XC, R_VC] = 1.0
+
+
+@njit(cache=True)
+def mode_decompose(A, core, quad, lam, V, Vi, mdt, fn_eig):
+    """Split a general linear mode into its core (a nonsingular block) and quadratures, and
+    eigen-decompose the core; return (n_core, n_quad, ok, wmax_modal).
+
+    A variable is a quadrature when no variable outside the quadratures found so far depends on it
+    (X_c always; V_c without drag or patch; d when constant). quad lists them in the order they
+    must be integrated. mdt: the modal slots of :func:`basis`; fn_eig[i]: the eigenvalue of slot
+    function i (-1 unused). ok is False for a singular or nearly defective core (eigenvector
+    condition above EIG_COND_MAX): the mode then goes to the adaptive path. wmax_modal is the
+    largest |eigenvalue|; a fifth value, the slow scale, ignores the faster real eigenvalues.
+    """
+    n = A.shape[0]
+    inq = np.zeros(n, dtype=np.bool_)
+    nq = 0
+    order = np.zeros(n, dtype=np.int64)
+    changed = True
+    while changed:
+        changed = False
+        for j in range(n):
+            if inq[j]:
+                continue
+            dep = False
+            for i in range(n):
+                if not inq[i] and A[i, j] != 0.0:
+                    dep = True
+                    break
+            if not dep:
+                inq[j] = True
+                order[nq] = j
+                nq += 1
+                changed = True
+    for k in range(nq):  # integrate in reverse order of discovery
+        quad[k] = order[nq - 1 - k]
+    nc = 0
+    for j in range(n):
+        if not inq[j]:
+            core[nc] = j
+            nc += 1
+    for i in range(8):
+        mdt[i] = 0.0
+    mdt[0] = MODE_NONE
+    mdt[4] = MODE_NONE
+    for i in range(4):
+        fn_eig[i] = -1
+    if nc == 0 or nc > 4:
+        return nc, nq, False, 0.0, 0.0
+    Ac = np.zeros((nc, nc))
+    for a in range(nc):
+        for b in range(nc):
+            Ac[a, b] = A[core[a], core[b]]
+    # LAPACK through numpy in object mode: np.linalg in nopython mode would keep the engine from
+    # being cached (its LAPACK pointers are dynamic globals); once per mode per run
+    with objmode(w='complex128[:]', vec='complex128[:,:]', vinv='complex128[:,:]'):
+        w, vec = np.linalg.eig(Ac)
+        vinv = np.linalg.inv(vec)
+        w = np.ascontiguousarray(w, dtype=np.complex128)
+        vec = np.ascontiguousarray(vec, dtype=np.complex128)
+        vinv = np.ascontiguousarray(vinv, dtype=np.complex128)
+    scale = 0.0
+    for k in range(nc):
+        scale = max(scale, abs(w[k]))
+    ok = scale > 0.0
+    for k in range(nc):
+        if abs(w[k]) <= 1e-9 * scale:
+            ok = False
+        c1 = 0.0
+        c2 = 0.0
+        for a in range(nc):
+            c1 += abs(vec[a, k]) ** 2
+            c2 += abs(vinv[k, a]) ** 2
+        if math.sqrt(c1 * c2) > EIG_COND_MAX:
+            ok = False
+    for a in range(4):
+        lam[a] = 0.0
+        for b in range(4):
+            V[a, b] = 0.0
+            Vi[a, b] = 0.0
+    for a in range(nc):
+        lam[a] = w[a]
+        for b in range(nc):
+            V[a, b] = vec[a, b]
+            Vi[a, b] = vinv[a, b]
+    # slots: a complex pair (Im > 0 taken) fills an oscillator slot; real eigenvalues pair up
+    slot = 0
+    reals = np.zeros(4, dtype=np.int64)
+    nr = 0
+    for k in range(nc):
+        im = w[k].imag
+        if abs(im) > 1e-12 * scale:
+            if im > 0.0:
+                if slot > 1:
+                    return nc, nq, False, scale, scale
+                o = 4 * slot
+                mdt[o] = MODE_OSC
+                mdt[o + 1] = w[k].real
+                mdt[o + 2] = -im * im
+                mdt[o + 3] = im
+                fn_eig[2 * slot] = k
+                fn_eig[2 * slot + 1] = k
+                slot += 1
+        else:
+            reals[nr] = k
+            nr += 1
+    r = 0
+    while r < nr:
+        if slot > 1:
+            return nc, nq, False, scale, scale
+        o = 4 * slot
+        mdt[o] = MODE_REAL
+        mdt[o + 1] = w[reals[r]].real
+        fn_eig[2 * slot] = reals[r]
+        if r + 1 < nr:
+            mdt[o + 2] = w[reals[r + 1]].real
+            fn_eig[2 * slot + 1] = reals[r + 1]
+        else:
+            mdt[o + 2] = mdt[o + 1]
+        slot += 1
+        r += 2
+    # the slow scale: the fastest oscillatory mode (or the slowest real one if none oscillates); a
+    # faster real mode only shapes the start of a segment: the scan's cells grow from the fast
+    # scale to the slow one
+    slow = 0.0
+    rmin = np.inf
+    for k in range(nc):
+        if abs(w[k].imag) > 1e-12 * scale:
+            slow = max(slow, abs(w[k]))
+        else:
+            rmin = min(rmin, abs(w[k]))
+    if slow == 0.0:
+        slow = rmin
+    return nc, nq, ok, scale, slow
+
+
+@njit(cache=True)
+def _add_modal(coef, core, nc, V, alpha, lam, mdt, fn_eig):
+    """Add the modal part ``V diag(e^{lambda tau}) alpha`` to the core rows of coef, written on the
+    real slot functions (a complex pair: 2 Re and -2 Im omega on e^{sigma tau} cos, sin/omega)."""
+    for f in range(4):
+        k = fn_eig[f]
+        if k < 0:
+            continue
+        col = B_M1 + f if f < 2 else B_M2 + f - 2
+        osc = mdt[0] == MODE_OSC if f < 2 else mdt[4] == MODE_OSC
+        for a in range(nc):
+            beta = V[a, k] * alpha[k]
+            if osc:
+                if f % 2 == 0:
+                    coef[core[a], col] += 2.0 * beta.real
+                else:
+                    coef[core[a], col] += -2.0 * beta.imag * lam[k].imag
+            else:
+                coef[core[a], col] += beta.real
+
+
+@njit(cache=True)
+def setup_general(A, b0, bc, Om, s0, u0, core, nc, quad, nq, lam, V, Vi, mdt, fn_eig, coef, md, work):
+    """Fill coef (rows R_*) and md of a general linear mode from its decomposition
+    (:func:`mode_decompose`) and the start state u0 = [x_r, v_r, X_c, V_c, d] at time s0 in the
+    period: the core is the particular solution of the constant and harmonic forcing plus
+    ``V e^{Lambda tau} V^-1 delta_0``; each quadrature is the exact antiderivative of its row."""
+    for i in range(8):
+        md[i] = mdt[i]
+    for i in range(N_ROWS):
+        for j in range(NB):
+            coef[i, j] = 0.0
+    # particular solution on the core: P0 = -A^-1 b0, Z = (i Om - A)^-1 bc  (z_p = P0 + Re(Z e^{i Om s}))
+    cb0 = np.zeros(4, dtype=np.complex128)
+    cbc = np.zeros(4, dtype=np.complex128)
+    for k in range(nc):
+        t0 = 0.0 + 0.0j
+        t1 = 0.0 + 0.0j
+        for a in range(nc):
+            t0 += Vi[k, a] * b0[core[a]]
+            t1 += Vi[k, a] * bc[core[a]]
+        cb0[k] = -t0 / lam[k]
+        cb1 = t1 / (1j * Om - lam[k]) if t1 != 0.0 else 0.0j
+        cbc[k] = cb1
+    ph = Om * s0
+    e0 = math.cos(ph) + 1j * math.sin(ph)
+    delta = np.zeros(4, dtype=np.complex128)
+    for a in range(nc):
+        P0 = 0.0
+        Z = 0.0j
+        for k in range(nc):
+            P0 += (V[a, k] * cb0[k]).real
+            Z += V[a, k] * cbc[k]
+        i = core[a]
+        coef[i, B_ONE] = P0
+        coef[i, B_COS] = Z.real
+        coef[i, B_SIN] = -Z.imag
+        delta[a] = u0[i] - (P0 + (Z * e0).real)
+    alpha = np.zeros(4, dtype=np.complex128)
+    for it in range(2):
+        # second pass: one step of iterative refinement on the start values, so that the rows start
+        # at u0 to rounding (an event surface the mode starts on is then seen as such)
+        for k in range(nc):
+            t = 0.0j
+            for a in range(nc):
+                t += Vi[k, a] * delta[a]
+            alpha[k] = t
+        _add_modal(coef, core, nc, V, alpha, lam, mdt, fn_eig)
+        for a in range(nc):
+            i = core[a]
+            v0 = coef[i, B_ONE] + coef[i, B_COS] * e0.real + coef[i, B_SIN] * e0.imag + coef[i, B_M1]
+            if mdt[0] == MODE_REAL:
+                v0 += coef[i, B_M1 + 1]
+            if mdt[4] != MODE_NONE:
+                v0 += coef[i, B_M2]
+                if mdt[4] == MODE_REAL:
+                    v0 += coef[i, B_M2 + 1]
+            delta[a] = u0[i] - v0
+    # quadratures
+    for q in range(nq):
+        i = quad[q]
+        for j in range(NB):
+            work[j] = 0.0
+        for jv in range(N_ROWS):
+            a = A[i, jv]
+            if a != 0.0:
+                for j in range(NB):
+                    work[j] += a * coef[jv, j]
+        work[B_ONE] += b0[i]
+        work[B_COS] += bc[i]
+        antideriv_coefs(work, md, Om, s0, u0[i], coef[i])
+
+
+@njit(cache=True)
+def general_events(p, gm, sg, tilt_on, coef, md, Om, evc, evcode, evtol, ne, tol_v, tol_F, work):
+    """Append the shell/patch event functions of a general linear mode to evc (inside-positive,
+    exact basis combinations); return the new count.
+
+    Slip: its end ``sg V_c = 0`` and, with a held speed law, ``|V_c| = V_min``. Stuck patch: the
+    breakaway ``|k_s d + c_s V_c| = P_b (1 + kappa x_r / G_1)``. Sliding patch: its stop, patch speed
+    ``V_p = V_c - d' = 0``. With tilt, the level's factor crossing zero (EV_TILT: the level is held
+    at zero beyond it, physics.md section 3)."""
+    G1 = p[I_G1]
+    if gm == GM_PSTICK:
+        if p[I_PB] < np.inf:
+            kq = p[I_PB] * p[I_KAP] / G1
+            for j in range(NB):
+                F = p[I_KS] * coef[R_D, j] + p[I_CS] * coef[R_VC, j]
+                evc[ne, j] = -F + kq * coef[R_XR, j]
+                evc[ne + 1, j] = F + kq * coef[R_XR, j]
+            evc[ne, B_ONE] += p[I_PB]
+            evc[ne + 1, B_ONE] += p[I_PB]
+            evcode[ne] = EV_BREAK_POS
+            evcode[ne + 1] = EV_BREAK_NEG
+            evtol[ne] = tol_F
+            evtol[ne + 1] = tol_F
+            ne += 2
+        return ne
+    if gm == GM_PSLIDE and p[I_CS] > 0.0:
+        deriv_coefs(coef[R_D], md, Om, work)
+        for j in range(NB):
+            evc[ne, j] = sg * (coef[R_VC, j] - work[j])
+    else:
+        for j in range(NB):
+            evc[ne, j] = sg * coef[R_VC, j]
+    evcode[ne] = EV_SLIP_END
+    evtol[ne] = tol_v
+    ne += 1
+    if gm == GM_SLIP and p[I_VFAST] < np.inf:
+        for j in range(NB):
+            evc[ne, j] = -sg * coef[R_VC, j]
+        evc[ne, B_ONE] += p[I_VFAST]
+        evcode[ne] = EV_FAST_ON
+        evtol[ne] = tol_v
+        ne += 1
+    if p[I_KAP] != 0.0:
+        side = 1.0 if tilt_on else -1.0
+        for j in range(NB):
+            evc[ne, j] = side * p[I_KAP] / G1 * coef[R_XR, j]
+        evc[ne, B_ONE] += side
+        evcode[ne] = EV_TILT
+        evtol[ne] = 1e-13
+        ne += 1
+    return ne
+
+
+@njit(cache=True)
+def gl_graded_count(tau1, h, h_slow):
+    """Number of quadrature pieces over [0, tau1] starting at h and doubling up to h_slow."""
+    n = 0
+    a = 0.0
+    dt = h
+    while a < tau1:
+        a += dt
+        dt = min(2.0 * dt, h_slow)
+        n += 1
+    return max(n, 1)
+
+
+@njit(cache=True)
+def gl_friction(p, coef, md, Om, s0, tau1, h, h_slow, gm, sg, tilt_on, dd, B, acc):
+    """Add the substrate's dissipation over [0, tau1] of a general linear mode (Gauss-Legendre):
+    friction ``(L0 + L1 x_r) |V_p|``, drag ``c_v V_c^2`` and the patch damper ``c_s (V_c - V_p)^2``
+    (V_p = V_c on a rigid wall; 0 for a stuck patch)."""
+    if tau1 <= 0.0:
+        return
+    L0, L1 = friction_row(p, tilt_on)
+    cv = p[I_CV]
+    cs = p[I_CS]
+    slide_damped = gm == GM_PSLIDE and cs > 0.0
+    if slide_damped:
+        deriv_coefs(coef[R_D], md, Om, dd)
+    # pieces of h, or growing from h to h_slow (a fast real mode)
+    graded = h_slow > h
+    npieces = int(math.ceil(tau1 / h))
+    if npieces < 1:
+        npieces = 1
+    dt = tau1 / npieces
+    if graded:
+        npieces = gl_graded_count(tau1, h, h_slow)
+        dt = h
+    a = 0.0
+    for k in range(npieces):
+        if graded:
+            if k > 0:
+                a += dt
+                dt = min(2.0 * dt, h_slow)
+            if k == npieces - 1:
+                dt = tau1 - a
+        else:
+            a = k * dt
+        for q in range(5):
+            t = a + 0.5 * dt * (GL_X[q] + 1.0)
+            basis(t, s0, md, Om, B)
+            Vc = dot9(coef[R_VC], B)
+            x = dot9(coef[R_XR], B)
+            wq = 0.5 * dt * GL_W[q]
+            if gm == GM_PSTICK:
+                dis = (cs + cv) * Vc * Vc
+            else:
+                Vp = Vc
+                if slide_damped:
+                    Vp = Vc - dot9(dd, B)
+                dis = (L0 + L1 * x) * sg * Vp + cv * Vc * Vc + cs * (Vc - Vp) * (Vc - Vp)
+            acc[E_FRIC] += wq * dis
+
+
+@njit(cache=True)
+def refine_root(c, dc, a, b, s0, md, Om, B):
     """Return the first tau in (a, b] just past the root of g = c.B, given g(a) >= 0 > g(b).
 
     Safeguarded Newton-bisection on the closed form; the returned point lies on the
     'outside' (g < 0) side within a few ulp of the root.
     """
-    basis(a, s0, sig, disc, w, Om, B)
-    ga = dot7(c, B)
+    basis(a, s0, md, Om, B)
+    ga = dot9(c, B)
     if ga < 0.0:
         return a
-    basis(b, s0, sig, disc, w, Om, B)
-    gb = dot7(c, B)
+    basis(b, s0, md, Om, B)
+    gb = dot9(c, B)
     x = b
     if gb != ga:
         x = a + (b - a) * ga / (ga - gb)
@@ -384,9 +964,9 @@ def refine_root(c, dc, a, b, s0, sig, disc, w, Om, B):
         tolx = 4.0 * EPS * (abs(s0) + abs(b)) + 1e-300
         if b - a <= tolx:
             break
-        basis(x, s0, sig, disc, w, Om, B)
-        g = dot7(c, B)
-        dg = dot7(dc, B)
+        basis(x, s0, md, Om, B)
+        g = dot9(c, B)
+        dg = dot9(dc, B)
         if g >= 0.0:
             a = x
         else:
@@ -398,8 +978,59 @@ def refine_root(c, dc, a, b, s0, sig, disc, w, Om, B):
                 # close the bracket from the inside: test a point just past the root
                 xo = x + 2.0 * tolx
                 if xo < b:
-                    basis(xo, s0, sig, disc, w, Om, B)
-                    if dot7(c, B) < 0.0:
+                    basis(xo, s0, md, Om, B)
+                    if dot9(c, B) < 0.0:
+                        b = xo
+                        break
+            if not (a < xn < b):
+                xn = 0.5 * (a + b)
+        else:
+            xn = 0.5 * (a + b)
+        x = xn
+    return b
+
+
+
+@njit(cache=True)
+def refine_root_base(c, dc, a, b, s0, md, Om, B):
+    """:func:`refine_root` on the seven-function basis of a base mode (the hot path).
+
+    Return the first tau in (a, b] just past the root of g = c.B, given g(a) >= 0 > g(b).
+
+    Safeguarded Newton-bisection on the closed form; the returned point lies on the
+    'outside' (g < 0) side within a few ulp of the root.
+    """
+    basis_base(a, s0, md, Om, B)
+    ga = dot_base(c, B)
+    if ga < 0.0:
+        return a
+    basis_base(b, s0, md, Om, B)
+    gb = dot_base(c, B)
+    x = b
+    if gb != ga:
+        x = a + (b - a) * ga / (ga - gb)
+    if not (a < x < b):
+        x = 0.5 * (a + b)
+    for _ in range(100):
+        tolx = 4.0 * EPS * (abs(s0) + abs(b)) + 1e-300
+        if b - a <= tolx:
+            break
+        basis_base(x, s0, md, Om, B)
+        g = dot_base(c, B)
+        dg = dot_base(dc, B)
+        if g >= 0.0:
+            a = x
+        else:
+            b = x
+        if dg != 0.0:
+            xn = x - g / dg
+            step = abs(xn - x)
+            if step < tolx and g >= 0.0:
+                # close the bracket from the inside: test a point just past the root
+                xo = x + 2.0 * tolx
+                if xo < b:
+                    basis_base(xo, s0, md, Om, B)
+                    if dot_base(c, B) < 0.0:
                         b = xo
                         break
             if not (a < xn < b):
@@ -411,24 +1042,37 @@ def refine_root(c, dc, a, b, s0, sig, disc, w, Om, B):
 
 
 @njit(cache=True)
-def gl_energy(p, coef, contact, shell, s0, tau1, h, sig, disc, w, Om, fe_level, B, acc):
+def gl_energy(p, coef, contact, shell, s0, tau1, h, h_slow, md, Om, fe_level, B, acc):
     """Add drive work and viscous dissipation over [0, tau1] of a linear segment (Gauss-Legendre)."""
     if tau1 <= 0.0:
         return
     K, C, F0 = contact_terms(p, contact)
     cs = p[I_C]
     cc = C - cs
+    # pieces of h, or growing from h to h_slow (a fast real mode)
+    graded = h_slow > h
     npieces = int(math.ceil(tau1 / h))
     if npieces < 1:
         npieces = 1
     dt = tau1 / npieces
+    if graded:
+        npieces = gl_graded_count(tau1, h, h_slow)
+        dt = h
+    a = 0.0
     for k in range(npieces):
-        a = k * dt
+        if graded:
+            if k > 0:
+                a += dt
+                dt = min(2.0 * dt, h_slow)
+            if k == npieces - 1:
+                dt = tau1 - a
+        else:
+            a = k * dt
         for q in range(5):
             t = a + 0.5 * dt * (GL_X[q] + 1.0)
-            basis(t, s0, sig, disc, w, Om, B)
-            vr = dot7(coef[1], B)
-            Vc = dot7(coef[3], B)
+            basis(t, s0, md, Om, B)
+            vr = dot9(coef[1], B)
+            Vc = dot9(coef[3], B)
             fe = drive_force(p, s0 + t, fe_level)
             wq = 0.5 * dt * GL_W[q]
             acc[E_DRIVE] += wq * fe * (Vc + vr)
@@ -567,7 +1211,7 @@ def dense_eval(rc, th, out):
 
 
 @njit(cache=True)
-def rk_event_value(p, contact, sgn, j, y):
+def rk_event_value(p, contact, sgn, vlo, vhi, j, y):
     """Inside-positive event functions of an adaptive segment (j: 0 contact a, 1 contact b, 2 V_min or
     slip end; with substrate compliance 2/3 the patch's breakaway + / -, or 2 the patch's stop)."""
     G1 = p[I_G1]
@@ -583,9 +1227,9 @@ def rk_event_value(p, contact, sgn, j, y):
             return sgn * (y[2] - (sgn * friction_level(p, 0.0, y[0]) - p[I_KS] * y[8]) / p[I_CS])
         return sgn * y[2]
     if j == 3:
-        return 1.0
+        return vhi - sgn * y[2] if vhi < np.inf else 1.0
     if j == 2:
-        return sgn * y[2] - p[I_VFAST]
+        return sgn * y[2] - vlo
     if contact == 0:
         if j == 0:
             return G1 - y[0]
@@ -599,6 +1243,124 @@ def rk_event_value(p, contact, sgn, j, y):
 
 # ---------------------------------------------------------------------------
 # the run
+
+
+@njit(cache=True)
+def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, tau_end, h, h_slow,
+                 recording, maxF, t_maxF, t_off, B, Bs, ga, dga, negc, negdc):
+    """Find the first event of a general linear mode within (0, tau_end] and the extrema of F_i
+    before it; return (event code or EV_NONE, its time tau, max |F_i|, its global time).
+
+    The same scan as the base modes' (written inline in :func:`run_core_at` on the seven-function
+    basis, the benchmark's hot path, where a call would cost 20 %): event functions bracketed on cells
+    growing from h to h_slow, grazing minima caught by the sign change of g', crossings refined on
+    the exact expressions by :func:`refine_root`; t_off is the period's start time.
+    """
+    ev = EV_NONE
+    tau_ev = tau_end
+    # scan
+    basis(0.0, s, md, Om, B)
+    for e in range(ne):
+        ga[e] = dot9(evc[e], B)
+        dga[e] = dot9(devc[e], B)
+    Fa = dot9(cF, B)
+    dFa = dot9(dcF, B)
+    if recording and abs(Fa) > maxF:
+        maxF = abs(Fa)
+        t_maxF = t_off + s
+    ta = 0.0
+    hcell = h
+    while True:
+        tb = min(ta + hcell, tau_end)
+        basis(tb, s, md, Om, B)
+        best = tb + 1.0
+        best_e = -1
+        for e in range(ne):
+            gb = dot9(evc[e], B)
+            dgb = dot9(devc[e], B)
+            r = -1.0
+            if gb < 0.0:
+                if ga[e] > evtol[e] or (ta > 0.0 and ga[e] >= 0.0):
+                    r = refine_root(evc[e], devc[e], ta, tb, s, md, Om, Bs)
+                else:
+                    # a mode start on the event surface (|g| at rounding level, maybe g' ~ 0
+                    # too, as at a Coulomb threshold): probe geometrically for the first point
+                    # clearly inside, then bracket the crossing from there; none -> a genuine
+                    # immediate exit.
+                    r = ta
+                    for kk in range(48):
+                        tk = ta + (tb - ta) * 2.0 ** (kk - 47)
+                        basis(tk, s, md, Om, Bs)
+                        if dot9(evc[e], Bs) > evtol[e]:
+                            r = refine_root(evc[e], devc[e], tk, tb, s, md, Om, Bs)
+                            break
+            elif dgb > 0.0 and (dga[e] < 0.0 or (ta == 0.0 and abs(dga[e]) <= 1e-9 * dgb)):
+                # an interior minimum of g (grazing). A mode that starts with g' ~ 0 (a slip
+                # from a friction threshold: V_c' = 0) has g' of either sign at rounding
+                # level at ta: probe geometrically for the first point where g' < 0.
+                for j in range(NB):
+                    negc[j] = -devc[e, j]
+                    negdc[j] = -ddevc[e, j]
+                t0m = ta
+                if dga[e] >= 0.0:
+                    t0m = -1.0
+                    for kk in range(48):
+                        tk = ta + (tb - ta) * 2.0 ** (kk - 47)
+                        basis(tk, s, md, Om, Bs)
+                        if dot9(devc[e], Bs) < 0.0:
+                            t0m = tk
+                            break
+                m = tb
+                if t0m >= 0.0:
+                    m = refine_root(negc, negdc, t0m, tb, s, md, Om, Bs)
+                basis(m, s, md, Om, Bs)
+                gm = dot9(evc[e], Bs)
+                if gm < -evtol[e]:
+                    r = refine_root(evc[e], devc[e], ta, m, s, md, Om, Bs)
+            if r >= 0.0 and r < best:
+                best = r
+                best_e = e
+            ga[e] = gb
+            dga[e] = dgb
+        t_stop = tb if best_e < 0 else best
+        # extrema of F_i within [ta, t_stop]
+        if recording:
+            Fb = dot9(cF, B)
+            dFb = dot9(dcF, B)
+            # an extremum of F_i inside the cell; refined only if it can beat maxF: with F'
+            # monotone across a cell (1/NPER of the fastest period) |F(m)| <= |F_a| + |F'_a| h
+            # and <= |F_b| + |F'_b| h
+            hc = tb - ta
+            if ((dFa > 0.0 and dFb < 0.0) or (dFa < 0.0 and dFb > 0.0)) and \
+                    min(abs(Fa) + abs(dFa) * hc, abs(Fb) + abs(dFb) * hc) > maxF:
+                if dFa > 0.0:
+                    m = refine_root(dcF, ddcF, ta, tb, s, md, Om, Bs)
+                else:
+                    for j in range(NB):
+                        negc[j] = -dcF[j]
+                        negdc[j] = -ddcF[j]
+                    m = refine_root(negc, negdc, ta, tb, s, md, Om, Bs)
+                if m <= t_stop:
+                    basis(m, s, md, Om, Bs)
+                    Fm = abs(dot9(cF, Bs))
+                    if Fm > maxF:
+                        maxF = Fm
+                        t_maxF = t_off + s + m
+            if best_e < 0 and abs(Fb) > maxF:
+                maxF = abs(Fb)
+                t_maxF = t_off + s + tb
+            Fa = Fb
+            dFa = dFb
+        if best_e >= 0:
+            ev = evcode[best_e]
+            tau_ev = best
+            break
+        if tb >= tau_end:
+            break
+        ta = tb
+        if hcell < h_slow:
+            hcell = min(2.0 * hcell, h_slow)
+    return ev, tau_ev, maxF, t_maxF
 
 
 @njit(cache=True)
@@ -633,6 +1395,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     nper = opts[O_NPER]
     do_energy = opts[O_ENERGY] > 0.5
     zeno_max = int(opts[O_ZENO])
+    exact_general = opts[O_EXACT] > 0.5
     max_steps = int(opts[O_MAXSTEPS])
     rtol = opts[O_RTOL]
     f = p[I_F]
@@ -656,12 +1419,13 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     energy = np.zeros(6)
     final = np.zeros(6)
 
-    coef = np.zeros((4, NB))
-    evc = np.zeros((4, NB))
-    devc = np.zeros((4, NB))
-    ddevc = np.zeros((4, NB))
-    evcode = np.zeros(4, dtype=np.int64)
-    evtol = np.zeros(4)
+    coef = np.zeros((N_ROWS, NB))
+    md = np.zeros(8)
+    evc = np.zeros((6, NB))
+    devc = np.zeros((6, NB))
+    ddevc = np.zeros((6, NB))
+    evcode = np.zeros(6, dtype=np.int64)
+    evtol = np.zeros(6)
     cF = np.zeros(NB)
     dcF = np.zeros(NB)
     ddcF = np.zeros(NB)
@@ -669,8 +1433,30 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     negdc = np.zeros(NB)
     B = np.zeros(NB)
     Bs = np.zeros(NB)
-    ga = np.zeros(4)
-    dga = np.zeros(4)
+    ga = np.zeros(6)
+    dga = np.zeros(6)
+    # general linear modes: the system and, per mode (contact x slip/patch state x tilt level), its
+    # eigen-decomposition, computed once per run
+    gA = np.zeros((N_ROWS, N_ROWS))
+    gb0 = np.zeros(N_ROWS)
+    gbc = np.zeros(N_ROWS)
+    gu0 = np.zeros(N_ROWS)
+    gwork = np.zeros(NB)
+    eff_slip = p[I_CV] > 0.0 or p[I_KAP] != 0.0
+    ncache = N_GM_KEYS if (eff_slip or p[I_KS] > 0.0) else 1
+    c_done = np.zeros(ncache, dtype=np.int64)
+    c_ok = np.zeros(ncache, dtype=np.int64)
+    c_nc = np.zeros(ncache, dtype=np.int64)
+    c_nq = np.zeros(ncache, dtype=np.int64)
+    c_scale = np.zeros(ncache)
+    c_slow = np.zeros(ncache)
+    c_core = np.zeros((ncache, 4), dtype=np.int64)
+    c_quad = np.zeros((ncache, N_ROWS), dtype=np.int64)
+    c_lam = np.zeros((ncache, 4), dtype=np.complex128)
+    c_V = np.zeros((ncache, 4, 4), dtype=np.complex128)
+    c_Vi = np.zeros((ncache, 4, 4), dtype=np.complex128)
+    c_mdt = np.zeros((ncache, 8))
+    c_fneig = np.zeros((ncache, 4), dtype=np.int64)
     # RK work arrays
     y = np.zeros(NY)
     y1 = np.zeros(NY)
@@ -757,10 +1543,71 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
         seg_stick = shell == STICK or shell == PATCH_STICK
         Xc_seg0 = Xc
 
-        if shell <= SLIP_NEG:
+        # which path: the base closed form (one modal slot), a general linear mode (effects: drag,
+        # tilt, substrate compliance; eigen-decomposition), or the adaptive segment (speed law above
+        # V_min, literal law, or a general mode whose eigenvectors are nearly defective)
+        lin_base = shell == STICK or ((shell == SLIP_POS or shell == SLIP_NEG) and not eff_slip)
+        lin_gen = False
+        gmode = GM_SLIP
+        sgm = 0.0
+        if not lin_base and exact_general:
+            if shell == SLIP_POS or shell == SLIP_NEG:
+                gmode = GM_SLIP
+                sgm = 1.0 if shell == SLIP_POS else -1.0
+                lin_gen = True
+            elif compliant and shell == PATCH_STICK:
+                gmode = GM_PSTICK
+                lin_gen = True
+            elif compliant and p[I_LAW] < 0.5:
+                gmode = GM_PSLIDE
+                sgm = 1.0 if shell == FAST_POS else -1.0
+                lin_gen = True
+        if lin_gen:
+            # the tilt level is active where 1 + kappa x_r / G_1 > 0; on the zero itself (a mode
+            # starting at EV_TILT) the direction of x_r decides
+            tilt_on = True
+            if p[I_KAP] != 0.0:
+                fac0 = 1.0 + p[I_KAP] * xr / G1
+                tilt_on = fac0 > 1e-13 or (fac0 > -1e-13 and p[I_KAP] * vr > 0.0)
+            if gmode == GM_SLIP:
+                mk = 0 if sgm > 0.0 else 1
+            elif gmode == GM_PSTICK:
+                mk = 2
+            else:
+                mk = 3 if sgm > 0.0 else 4
+            key = contact * 10 + mk * 2 + (0 if tilt_on else 1)
+            mode_system(p, contact, gmode, sgm, tilt_on, fe_level, gA, gb0, gbc)
+            if c_done[key] == 0:
+                nc_, nq_, ok_, sc_, sl_ = mode_decompose(gA, c_core[key], c_quad[key], c_lam[key], c_V[key],
+                                                    c_Vi[key], c_mdt[key], c_fneig[key])
+                c_done[key] = 1
+                c_ok[key] = 1 if ok_ else 0
+                c_nc[key] = nc_
+                c_nq[key] = nq_
+                c_scale[key] = sc_
+                c_slow[key] = sl_
+            lin_gen = c_ok[key] == 1
+        if lin_base or lin_gen:
             # ---------------- linear closed-form segment
-            sig, disc, w, wmax, Om = setup_linear(p, contact, shell, s, xr, vr, Xc, Vc, fe_level, coef)
+            if lin_base:
+                wmax, Om = setup_linear(p, contact, shell, s, xr, vr, Xc, Vc, fe_level, coef, md)
+                coef[R_D, B_ONE] = dsub
+            else:
+                Om = TWO_PI * f if harmonic else 0.0
+                gu0[R_XR] = xr
+                gu0[R_VR] = vr
+                gu0[R_XC] = Xc
+                gu0[R_VC] = Vc
+                gu0[R_D] = dsub
+                setup_general(gA, gb0, gbc, Om, s, gu0, c_core[key], c_nc[key], c_quad[key], c_nq[key],
+                              c_lam[key], c_V[key], c_Vi[key], c_mdt[key], c_fneig[key], coef, md, gwork)
+                wmax = max(c_scale[key], Om)
             h = TWO_PI / wmax / nper
+            # scan cells: from h (the fastest mode) doubling to h_slow (a fast real mode has decayed)
+            h_slow = h
+            if lin_gen:
+                h_slow = TWO_PI / max(c_slow[key], Om, 1e-300) / nper
+                h_slow = min(max(h_slow, h), tau_end)
             # events of this mode
             ne = 0
             if contact == 0:
@@ -794,7 +1641,10 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             for j in range(NB):
                 cF[j] = K * coef[0, j] + Cd * coef[1, j]
             cF[4] += F0
-            if shell == STICK:
+            if lin_gen:
+                ne = general_events(p, gmode, sgm, tilt_on, coef, md, Om, evc, evcode, evtol, ne, tol_v, tol_F,
+                                    gwork)
+            elif shell == STICK:
                 if p[I_PB] < np.inf:
                     for j in range(NB):
                         evc[ne, j] = -cF[j]
@@ -826,116 +1676,129 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                     evcode[ne] = EV_FAST_ON
                     evtol[ne] = tol_v
                     ne += 1
-            for e in range(ne):
-                deriv_coefs(evc[e], sig, disc, Om, devc[e])
-                deriv_coefs(devc[e], sig, disc, Om, ddevc[e])
-            deriv_coefs(cF, sig, disc, Om, dcF)
-            deriv_coefs(dcF, sig, disc, Om, ddcF)
-            # scan
-            basis(0.0, s, sig, disc, w, Om, B)
-            for e in range(ne):
-                ga[e] = dot7(evc[e], B)
-                dga[e] = dot7(devc[e], B)
-            Fa = dot7(cF, B)
-            dFa = dot7(dcF, B)
-            if recording and abs(Fa) > maxF:
-                maxF = abs(Fa)
-                t_maxF = period * T + s
-            ta = 0.0
-            while True:
-                tb = min(ta + h, tau_end)
-                basis(tb, s, sig, disc, w, Om, B)
-                best = tb + 1.0
-                best_e = -1
+            if lin_gen:
                 for e in range(ne):
-                    gb = dot7(evc[e], B)
-                    dgb = dot7(devc[e], B)
-                    r = -1.0
-                    if gb < 0.0:
-                        if ga[e] > evtol[e] or (ta > 0.0 and ga[e] >= 0.0):
-                            r = refine_root(evc[e], devc[e], ta, tb, s, sig, disc, w, Om, Bs)
-                        else:
-                            # a mode start on the event surface (|g| at rounding level, maybe g' ~ 0
-                            # too, as at a Coulomb threshold): probe geometrically for the first point
-                            # clearly inside, then bracket the crossing from there; none -> a genuine
-                            # immediate exit.
-                            r = ta
-                            for kk in range(48):
-                                tk = ta + (tb - ta) * 2.0 ** (kk - 47)
-                                basis(tk, s, sig, disc, w, Om, Bs)
-                                if dot7(evc[e], Bs) > evtol[e]:
-                                    r = refine_root(evc[e], devc[e], tk, tb, s, sig, disc, w, Om, Bs)
-                                    break
-                    elif dgb > 0.0 and (dga[e] < 0.0 or (ta == 0.0 and abs(dga[e]) <= 1e-9 * dgb)):
-                        # an interior minimum of g (grazing). A mode that starts with g' ~ 0 (a slip
-                        # from a friction threshold: V_c' = 0) has g' of either sign at rounding
-                        # level at ta: probe geometrically for the first point where g' < 0.
-                        for j in range(NB):
-                            negc[j] = -devc[e, j]
-                            negdc[j] = -ddevc[e, j]
-                        t0m = ta
-                        if dga[e] >= 0.0:
-                            t0m = -1.0
-                            for kk in range(48):
-                                tk = ta + (tb - ta) * 2.0 ** (kk - 47)
-                                basis(tk, s, sig, disc, w, Om, Bs)
-                                if dot7(devc[e], Bs) < 0.0:
-                                    t0m = tk
-                                    break
-                        m = tb
-                        if t0m >= 0.0:
-                            m = refine_root(negc, negdc, t0m, tb, s, sig, disc, w, Om, Bs)
-                        basis(m, s, sig, disc, w, Om, Bs)
-                        gm = dot7(evc[e], Bs)
-                        if gm < -evtol[e]:
-                            r = refine_root(evc[e], devc[e], ta, m, s, sig, disc, w, Om, Bs)
-                    if r >= 0.0 and r < best:
-                        best = r
-                        best_e = e
-                    ga[e] = gb
-                    dga[e] = dgb
-                t_stop = tb if best_e < 0 else best
-                # extrema of F_i within [ta, t_stop]
-                if recording:
-                    Fb = dot7(cF, B)
-                    dFb = dot7(dcF, B)
-                    # an extremum of F_i inside the cell; refined only if it can beat maxF: with F'
-                    # monotone across a cell (1/NPER of the fastest period) |F(m)| <= |F_a| + |F'_a| h
-                    # and <= |F_b| + |F'_b| h
-                    hc = tb - ta
-                    if ((dFa > 0.0 and dFb < 0.0) or (dFa < 0.0 and dFb > 0.0)) and \
-                            min(abs(Fa) + abs(dFa) * hc, abs(Fb) + abs(dFb) * hc) > maxF:
-                        if dFa > 0.0:
-                            m = refine_root(dcF, ddcF, ta, tb, s, sig, disc, w, Om, Bs)
-                        else:
+                    deriv_coefs(evc[e], md, Om, devc[e])
+                    deriv_coefs(devc[e], md, Om, ddevc[e])
+                deriv_coefs(cF, md, Om, dcF)
+                deriv_coefs(dcF, md, Om, ddcF)
+            else:
+                for e in range(ne):
+                    deriv_base(evc[e], md, Om, devc[e])
+                    deriv_base(devc[e], md, Om, ddevc[e])
+                deriv_base(cF, md, Om, dcF)
+                deriv_base(dcF, md, Om, ddcF)
+            if lin_gen:
+                ev, tau_ev, maxF, t_maxF = locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om,
+                                                        s, tau_end, h, h_slow, recording, maxF, t_maxF, period * T,
+                                                        B, Bs, ga, dga, negc, negdc)
+            else:
+                # scan
+                basis_base(0.0, s, md, Om, B)
+                for e in range(ne):
+                    ga[e] = dot_base(evc[e], B)
+                    dga[e] = dot_base(devc[e], B)
+                Fa = dot_base(cF, B)
+                dFa = dot_base(dcF, B)
+                if recording and abs(Fa) > maxF:
+                    maxF = abs(Fa)
+                    t_maxF = period * T + s
+                ta = 0.0
+                while True:
+                    tb = min(ta + h, tau_end)
+                    basis_base(tb, s, md, Om, B)
+                    best = tb + 1.0
+                    best_e = -1
+                    for e in range(ne):
+                        gb = dot_base(evc[e], B)
+                        dgb = dot_base(devc[e], B)
+                        r = -1.0
+                        if gb < 0.0:
+                            if ga[e] > evtol[e] or (ta > 0.0 and ga[e] >= 0.0):
+                                r = refine_root_base(evc[e], devc[e], ta, tb, s, md, Om, Bs)
+                            else:
+                                # a mode start on the event surface (|g| at rounding level, maybe g' ~ 0
+                                # too, as at a Coulomb threshold): probe geometrically for the first point
+                                # clearly inside, then bracket the crossing from there; none -> a genuine
+                                # immediate exit.
+                                r = ta
+                                for kk in range(48):
+                                    tk = ta + (tb - ta) * 2.0 ** (kk - 47)
+                                    basis_base(tk, s, md, Om, Bs)
+                                    if dot_base(evc[e], Bs) > evtol[e]:
+                                        r = refine_root_base(evc[e], devc[e], tk, tb, s, md, Om, Bs)
+                                        break
+                        elif dgb > 0.0 and (dga[e] < 0.0 or (ta == 0.0 and abs(dga[e]) <= 1e-9 * dgb)):
+                            # an interior minimum of g (grazing). A mode that starts with g' ~ 0 (a slip
+                            # from a friction threshold: V_c' = 0) has g' of either sign at rounding
+                            # level at ta: probe geometrically for the first point where g' < 0.
                             for j in range(NB):
-                                negc[j] = -dcF[j]
-                                negdc[j] = -ddcF[j]
-                            m = refine_root(negc, negdc, ta, tb, s, sig, disc, w, Om, Bs)
-                        if m <= t_stop:
-                            basis(m, s, sig, disc, w, Om, Bs)
-                            Fm = abs(dot7(cF, Bs))
-                            if Fm > maxF:
-                                maxF = Fm
-                                t_maxF = period * T + s + m
-                    if best_e < 0 and abs(Fb) > maxF:
-                        maxF = abs(Fb)
-                        t_maxF = period * T + s + tb
-                    Fa = Fb
-                    dFa = dFb
-                if best_e >= 0:
-                    ev = evcode[best_e]
-                    tau_ev = best
-                    break
-                if tb >= tau_end:
-                    break
-                ta = tb
+                                negc[j] = -devc[e, j]
+                                negdc[j] = -ddevc[e, j]
+                            t0m = ta
+                            if dga[e] >= 0.0:
+                                t0m = -1.0
+                                for kk in range(48):
+                                    tk = ta + (tb - ta) * 2.0 ** (kk - 47)
+                                    basis_base(tk, s, md, Om, Bs)
+                                    if dot_base(devc[e], Bs) < 0.0:
+                                        t0m = tk
+                                        break
+                            m = tb
+                            if t0m >= 0.0:
+                                m = refine_root_base(negc, negdc, t0m, tb, s, md, Om, Bs)
+                            basis_base(m, s, md, Om, Bs)
+                            gm = dot_base(evc[e], Bs)
+                            if gm < -evtol[e]:
+                                r = refine_root_base(evc[e], devc[e], ta, m, s, md, Om, Bs)
+                        if r >= 0.0 and r < best:
+                            best = r
+                            best_e = e
+                        ga[e] = gb
+                        dga[e] = dgb
+                    t_stop = tb if best_e < 0 else best
+                    # extrema of F_i within [ta, t_stop]
+                    if recording:
+                        Fb = dot_base(cF, B)
+                        dFb = dot_base(dcF, B)
+                        # an extremum of F_i inside the cell; refined only if it can beat maxF: with F'
+                        # monotone across a cell (1/NPER of the fastest period) |F(m)| <= |F_a| + |F'_a| h
+                        # and <= |F_b| + |F'_b| h
+                        hc = tb - ta
+                        if ((dFa > 0.0 and dFb < 0.0) or (dFa < 0.0 and dFb > 0.0)) and \
+                                min(abs(Fa) + abs(dFa) * hc, abs(Fb) + abs(dFb) * hc) > maxF:
+                            if dFa > 0.0:
+                                m = refine_root_base(dcF, ddcF, ta, tb, s, md, Om, Bs)
+                            else:
+                                for j in range(NB):
+                                    negc[j] = -dcF[j]
+                                    negdc[j] = -ddcF[j]
+                                m = refine_root_base(negc, negdc, ta, tb, s, md, Om, Bs)
+                            if m <= t_stop:
+                                basis_base(m, s, md, Om, Bs)
+                                Fm = abs(dot_base(cF, Bs))
+                                if Fm > maxF:
+                                    maxF = Fm
+                                    t_maxF = period * T + s + m
+                        if best_e < 0 and abs(Fb) > maxF:
+                            maxF = abs(Fb)
+                            t_maxF = period * T + s + tb
+                        Fa = Fb
+                        dFa = dFb
+                    if best_e >= 0:
+                        ev = evcode[best_e]
+                        tau_ev = best
+                        break
+                    if tb >= tau_end:
+                        break
+                    ta = tb
             # end state
-            basis(tau_ev, s, sig, disc, w, Om, B)
-            xr1 = dot7(coef[0], B)
-            vr1 = dot7(coef[1], B)
-            Xc1 = dot7(coef[2], B)
-            Vc1 = dot7(coef[3], B)
+            basis(tau_ev, s, md, Om, B)
+            xr1 = dot9(coef[0], B)
+            vr1 = dot9(coef[1], B)
+            Xc1 = dot9(coef[2], B)
+            Vc1 = dot9(coef[3], B)
+            d1 = dot9(coef[R_D], B)
             if recording:
                 F1 = abs(K * xr1 + Cd * vr1 + F0)
                 if F1 > maxF:
@@ -950,11 +1813,11 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                     tt = ts - s
                     if tt < 0.0:
                         tt = 0.0
-                    basis(tt, s, sig, disc, w, Om, Bs)
-                    sx = dot7(coef[0], Bs)
-                    sv = dot7(coef[1], Bs)
-                    sXc = dot7(coef[2], Bs)
-                    sVc = dot7(coef[3], Bs)
+                    basis(tt, s, md, Om, Bs)
+                    sx = dot9(coef[0], Bs)
+                    sv = dot9(coef[1], Bs)
+                    sXc = dot9(coef[2], Bs)
+                    sVc = dot9(coef[3], Bs)
                     row = samples[j_sample]
                     row[S_T] = rec_t0 + sample_times[j_sample]
                     row[S_XM] = sXc + sx
@@ -963,20 +1826,28 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                     row[S_VC] = sVc
                     row[S_XR] = sx
                     row[S_CONTACT] = contact
-                    row[S_STICK] = 1.0 if shell == STICK else 0.0
+                    row[S_STICK] = 1.0 if seg_stick else 0.0
                     row[S_FI] = K * sx + Cd * sv + F0
                     j_sample += 1
             if recording and do_energy:
-                gl_energy(p, coef, contact, shell, s, tau_ev, h, sig, disc, w, Om, fe_level, Bs, energy)
-                if shell != STICK:
+                gl_energy(p, coef, contact, shell, s, tau_ev, h, h_slow, md, Om, fe_level, Bs, energy)
+                if lin_gen:
+                    gl_friction(p, coef, md, Om, s, tau_ev, h, h_slow, gmode, sgm, tilt_on, gwork, Bs, energy)
+                elif shell != STICK:
                     energy[E_FRIC] += p[I_L0] * abs(Xc1 - Xc_seg0)
             xr = xr1
             vr = vr1
             Xc = Xc1
             Vc = 0.0 if shell == STICK else Vc1
+            dsub = d1
         else:
-            # ---------------- fast slip: speed-dependent law, DOPRI5 with dense output
-            sg = 1.0 if shell == FAST_POS else -1.0
+            # ---------------- adaptive segment: speed-dependent law above V_min (DOPRI5, dense output)
+            sg = 1.0 if (shell == FAST_POS or shell == SLIP_POS) else -1.0
+            # a slip (not fast) mode here is a general linear mode with nearly defective eigenvectors:
+            # its events are the slip's end (V_c = 0) and V_min
+            rk_slow = shell == SLIP_POS or shell == SLIP_NEG
+            vlo = 0.0 if rk_slow else p[I_VFAST]
+            vhi = p[I_VFAST] if rk_slow else np.inf
             w0 = math.sqrt(K * (1.0 / Mm + 1.0 / Mc))
             wmax = w0
             if harmonic:
@@ -1003,7 +1874,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             nsteps = 0
             g0 = np.zeros(4)
             for j in range(4):
-                g0[j] = rk_event_value(p, contact, sg, j, y)
+                g0[j] = rk_event_value(p, contact, sg, vlo, vhi, j, y)
             Fa = K * y[0] + Cd * y[1] + F0
             dFa = K * k1[0] + Cd * k1[1]
             while True:
@@ -1053,7 +1924,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                 th_ev = 2.0
                 e_ev = -1
                 for j in range(4):
-                    g1 = rk_event_value(p, contact, sg, j, y1)
+                    g1 = rk_event_value(p, contact, sg, vlo, vhi, j, y1)
                     lo = 0.0
                     hi = -1.0
                     if g1 < 0.0:
@@ -1069,15 +1940,15 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                                 mth = 0.5 * (a_ + b_)
                                 # derivative from the interpolant (central difference)
                                 dense_eval(rc, min(mth + 1e-7, 1.0), yd)
-                                gp = rk_event_value(p, contact, sg, j, yd)
+                                gp = rk_event_value(p, contact, sg, vlo, vhi, j, yd)
                                 dense_eval(rc, max(mth - 1e-7, 0.0), yd)
-                                gm_ = rk_event_value(p, contact, sg, j, yd)
+                                gm_ = rk_event_value(p, contact, sg, vlo, vhi, j, yd)
                                 if gp - gm_ < 0.0:
                                     a_ = mth
                                 else:
                                     b_ = mth
                             dense_eval(rc, 0.5 * (a_ + b_), yd)
-                            if rk_event_value(p, contact, sg, j, yd) < -tol_x:
+                            if rk_event_value(p, contact, sg, vlo, vhi, j, yd) < -tol_x:
                                 hi = 0.5 * (a_ + b_)
                     if hi > 0.0:
                         a_ = lo
@@ -1085,7 +1956,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                         for _ in range(80):
                             mth = 0.5 * (a_ + b_)
                             dense_eval(rc, mth, yd)
-                            if rk_event_value(p, contact, sg, j, yd) >= 0.0:
+                            if rk_event_value(p, contact, sg, vlo, vhi, j, yd) >= 0.0:
                                 a_ = mth
                             else:
                                 b_ = mth
@@ -1157,7 +2028,9 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                         else:
                             ev = EV_SLIP_END
                     elif e_ev == 2:
-                        ev = EV_FAST_OFF
+                        ev = EV_SLIP_END if rk_slow else EV_FAST_OFF
+                    elif e_ev == 3:
+                        ev = EV_FAST_ON
                     elif contact == 0:
                         ev = EV_FRONT_ON if e_ev == 0 else EV_BACK_ON
                     elif contact == 1:

@@ -360,8 +360,9 @@ def pack_params(model: CapsuleModel, drive: Drive, friction: Friction) -> np.nda
         p[E.I_KS] = 1.0 / model.compliance_m_N
         p[E.I_CS] = model.substrate_damping_Ns_m
     # slips faster than I_VFAST go on the adaptive path: above V_min for a held speed law; every
-    # slip when the resisting force varies within a slip (literal law, drag, tilt); never for Coulomb
-    rk_all = (speed_law and friction.literal) or model.drag_Ns_m > 0 or model.tilt_kappa != 0 or compliant
+    # slip under the literal law (no held level); never for Coulomb. Drag, tilt and substrate
+    # compliance keep the modes linear: the engine solves them exactly (general linear modes).
+    rk_all = speed_law and friction.literal
     p[E.I_VFAST] = 0.0 if rk_all else (vmin if speed_law else math.inf)
     mu = model.mass_magnet_kg * model.mass_capsule_kg / (model.mass_magnet_kg + model.mass_capsule_kg)
     xs = max(model.gap_m, drive.amplitude_N / model.spring_N_m, 1e-6)
@@ -377,13 +378,16 @@ def pack_params(model: CapsuleModel, drive: Drive, friction: Friction) -> np.nda
 class EngineOptions:
     """Numerical options: samples_per_fast_period (bracketing grid, 1/N of the fastest modal
     period), energy (accumulate the energy balance), rk_rtol (fast-slip DOPRI5), zeno_max
-    (zero-length events tolerated in a row), rk_max_steps (per segment)."""
+    (zero-length events tolerated in a row), rk_max_steps (per segment), exact_general_modes
+    (solve the linear modes of drag, tilt and substrate compliance exactly; False integrates them on
+    the adaptive path, a cross-check)."""
 
     samples_per_fast_period: float = 8.0
     energy: bool = True
     rk_rtol: float = 1e-11
     zeno_max: int = 200
     rk_max_steps: int = 2_000_000
+    exact_general_modes: bool = True
     extra: dict = field(default_factory=dict)
 
     def pack(self) -> np.ndarray:
@@ -393,4 +397,5 @@ class EngineOptions:
         o[E.O_RTOL] = self.rk_rtol
         o[E.O_ZENO] = self.zeno_max
         o[E.O_MAXSTEPS] = self.rk_max_steps
+        o[E.O_EXACT] = 1.0 if self.exact_general_modes else 0.0
         return o
