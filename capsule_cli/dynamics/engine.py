@@ -1793,12 +1793,20 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                         break
                     ta = tb
             # end state
-            basis(tau_ev, s, md, Om, B)
-            xr1 = dot9(coef[0], B)
-            vr1 = dot9(coef[1], B)
-            Xc1 = dot9(coef[2], B)
-            Vc1 = dot9(coef[3], B)
-            d1 = dot9(coef[R_D], B)
+            if lin_gen:
+                basis(tau_ev, s, md, Om, B)
+                xr1 = dot9(coef[0], B)
+                vr1 = dot9(coef[1], B)
+                Xc1 = dot9(coef[2], B)
+                Vc1 = dot9(coef[3], B)
+                d1 = dot9(coef[R_D], B)
+            else:
+                basis_base(tau_ev, s, md, Om, B)
+                xr1 = dot_base(coef[0], B)
+                vr1 = dot_base(coef[1], B)
+                Xc1 = dot_base(coef[2], B)
+                Vc1 = dot_base(coef[3], B)
+                d1 = dsub
             if recording:
                 F1 = abs(K * xr1 + Cd * vr1 + F0)
                 if F1 > maxF:
