@@ -14,6 +14,7 @@ names the file, the key and the closest valid key (exit code 2).
 from __future__ import annotations
 
 import difflib
+import functools
 import hashlib
 import json
 import math
@@ -177,11 +178,25 @@ def param_set_path(name: str) -> Path:
 
 
 def load_param_set_file(name_or_path: str | os.PathLike) -> ParamSetFile:
-    """Return a validated parameter-set file, by name (``capsule``) or path."""
+    """Return a validated parameter-set file, by name (``capsule``) or path.
+
+    Parsed files are cached by (path, modification time, size): the dynamics loop builds a system per
+    model evaluation (thousands per diagnose) and re-parsing the YAML was half of a closed-form evaluation.
+    A deep copy is returned, so callers may change it.
+    """
     p = Path(name_or_path)
     if p.suffix not in (".yaml", ".yml"):
         p = param_set_path(str(name_or_path))
-    return validate(ParamSetFile, read_yaml(p), p)
+    try:
+        st = p.stat()
+    except OSError:
+        return validate(ParamSetFile, read_yaml(p), p)  # read_yaml says why (one line, exit 2)
+    return _param_set_cached(str(p.resolve()), st.st_mtime_ns, st.st_size).model_copy(deep=True)
+
+
+@functools.lru_cache(maxsize=64)
+def _param_set_cached(path: str, mtime_ns: int, size: int) -> ParamSetFile:
+    return validate(ParamSetFile, read_yaml(path), Path(path))
 
 
 def load_param_set(name_or_path: str | os.PathLike) -> dict[str, float]:
