@@ -178,11 +178,19 @@ def param_set_path(name: str) -> Path:
 
 
 def load_param_set_file(name_or_path: str | os.PathLike) -> ParamSetFile:
-    """Return a validated parameter-set file, by name (``capsule``) or path.
+    """Return a validated parameter-set file, by name (``capsule``) or path."""
+    p = Path(name_or_path)
+    if p.suffix not in (".yaml", ".yml"):
+        p = param_set_path(str(name_or_path))
+    return validate(ParamSetFile, read_yaml(p), p)
 
-    Parsed files are cached by (path, modification time, size): the dynamics loop builds a system per
-    model evaluation (thousands per diagnose) and re-parsing the YAML was half of a closed-form evaluation.
-    A deep copy is returned, so callers may change it.
+
+def load_param_set(name_or_path: str | os.PathLike) -> dict[str, float]:
+    """Return ``{name: value}`` of a parameter set, values in the unit of each name's suffix.
+
+    Convert with :func:`capsule_cli.units.to_si` (or use :func:`load_param_set_si`). Values are cached by
+    (path, modification time, size): the dynamics loop builds a system per model evaluation (thousands per
+    diagnose), and re-parsing the YAML was half the cost of a closed-form evaluation. A new dict each call.
     """
     p = Path(name_or_path)
     if p.suffix not in (".yaml", ".yml"):
@@ -190,21 +198,13 @@ def load_param_set_file(name_or_path: str | os.PathLike) -> ParamSetFile:
     try:
         st = p.stat()
     except OSError:
-        return validate(ParamSetFile, read_yaml(p), p)  # read_yaml says why (one line, exit 2)
-    return _param_set_cached(str(p.resolve()), st.st_mtime_ns, st.st_size).model_copy(deep=True)
+        return {k: e.value for k, e in load_param_set_file(p).params.items()}  # says why (one line, exit 2)
+    return dict(_param_values_cached(str(p), st.st_mtime_ns, st.st_size))
 
 
 @functools.lru_cache(maxsize=64)
-def _param_set_cached(path: str, mtime_ns: int, size: int) -> ParamSetFile:
-    return validate(ParamSetFile, read_yaml(path), Path(path))
-
-
-def load_param_set(name_or_path: str | os.PathLike) -> dict[str, float]:
-    """Return ``{name: value}`` of a parameter set, values in the unit of each name's suffix.
-
-    Convert with :func:`capsule_cli.units.to_si` (or use :func:`load_param_set_si`).
-    """
-    return {k: e.value for k, e in load_param_set_file(name_or_path).params.items()}
+def _param_values_cached(path: str, mtime_ns: int, size: int) -> tuple:
+    return tuple((k, e.value) for k, e in load_param_set_file(path).params.items())
 
 
 def load_param_set_si(name_or_path: str | os.PathLike) -> dict[str, float]:
