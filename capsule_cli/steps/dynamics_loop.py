@@ -49,7 +49,7 @@ from scipy.stats import qmc
 
 from ..dynamics import system as dsys
 from ..dynamics.model import EngineOptions
-from ..effects.model import Model
+from ..effects.model import FreeParams, Model
 from ..effects.registry import Effect
 from ..errors import InputError
 from ..fitting import information_criteria
@@ -150,7 +150,7 @@ def _drive_of(d: pd.DataFrame, where: str) -> tuple[float, float, float | None, 
 # the model tied to a table
 
 
-class DynBound:
+class DynBound(FreeParams):
     """A dynamics model tied to a table: ``simulate(theta)`` gives predictions per comparison row.
 
     theta holds the free parameters in the unit of each name's suffix (as in the model file).
@@ -182,28 +182,7 @@ class DynBound:
             self.modes = dict(modes) if modes else {r: "position" for r, _ in self.runs}
             self._build_rows()
 
-    # -- parameters
-    @property
-    def names(self) -> list[str]:
-        return [s.key for s in self.free]
-
-    @property
-    def x0(self) -> np.ndarray:
-        return np.array([s.value for s in self.free], float)
-
-    @property
-    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        lo = np.array([s.bounds[0] for s in self.free], float)
-        hi = np.array([s.bounds[1] for s in self.free], float)
-        return lo, hi
-
-    def values(self, theta=None) -> dict[str, float]:
-        """Return ``{spec key: value}`` (declared units) with the free ones from theta."""
-        vals = {s.key: s.value for s in self.model.specs}
-        if theta is not None:
-            for s, v in zip(self.free, theta):
-                vals[s.key] = float(v)
-        return vals
+    # -- parameters: names, x0, bounds, values() from effects.model.FreeParams
 
     def system(self, theta=None, Pf_N: float | None = None) -> dsys.DynSystem:
         vals = self.values(theta)
