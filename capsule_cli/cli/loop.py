@@ -143,6 +143,9 @@ def register(app: typer.Typer) -> None:
         folds: int = FOLDS,
         seed: int = SEED,
         effort: str = EFFORT,
+        candidate: Optional[List[str]] = typer.Option(None, "--candidate", help="Dynamics kinds: try only this "
+                                                      "effect (repeat the option; default every applicable one). "
+                                                      "The verdict's Bonferroni factor counts those tried."),
         plugins: Optional[List[Path]] = PLUGINS,
         drop_incomplete: bool = DROP,
         quiet: bool = QUIET,
@@ -156,8 +159,10 @@ def register(app: typer.Typer) -> None:
         df, k = _data(data, m, kind, drop_incomplete)
         if dynamics_loop.is_dynamics(k):
             r = dynamics_loop.run_diagnose(m, df, str(data), out, write_model, folds, seed, add_best=add_best,
-                                           quiet=quiet, budget=_effort(effort))
+                                           quiet=quiet, budget=_effort(effort), candidates=candidate or None)
         else:
+            if candidate:
+                raise InputError("--candidate: only for the dynamics kinds (progression, trajectory)")
             r = run_diagnose(m, df, k, str(data), out, write_model, folds, seed, add_best=add_best, quiet=quiet)
         if write_model is not None and r["verdict"]["missing_effect"] is None and not add_best:
             typer.echo(f"capsule-cli: note: no effect named; {write_model} is the model unchanged", err=True)
