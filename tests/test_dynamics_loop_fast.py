@@ -182,3 +182,14 @@ def test_trajectory_nothing_missing_null(tmp_path):
         r["verdict"]["message"]
     # frames undersample the motion: the noise comes from the best fit's residuals, near the generating SD
     assert 0.8 * POS_NOISE < r["noise"]["sd"] < 1.25 * POS_NOISE, r["noise"]["method"]
+
+
+def test_unknown_candidate_is_bad_input(tmp_path):
+    from capsule_cli.errors import InputError
+
+    base = _model(tmp_path, "base", params={"Pf_N": FREE_PF})
+    df = pd.DataFrame({"f_Hz": [30.0, 34.0], "Pd_N": [0.08, 0.08], "velocity_mm_s": [0.0, 17.0]})
+    with pytest.raises(InputError, match="not applicable"):  # before any calibration
+        DL.run_diagnose(base, df, "x.csv", tmp_path / "d", k_folds=2, figures=False, budget=QUICK,
+                        candidates=["no_such_effect"])
+    assert not (tmp_path / "d").exists()

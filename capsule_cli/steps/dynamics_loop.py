@@ -921,6 +921,13 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
 
     t0 = time.perf_counter()
     out = Path(out_dir)
+    pool = applicable_effects(model, df)
+    if candidates is not None:  # checked before any work
+        unknown = sorted(set(candidates) - {e.name for e in pool})
+        if unknown:
+            raise InputError(f"candidates {unknown} are not applicable effects of kind {model.kind} "
+                             f"(applicable: {', '.join(e.name for e in pool)})")
+        pool = [e for e in pool if e.name in set(candidates)]
     bound, noise, sigma, groups, how, folds = _setup(model, df, data_path, k_folds, seed, budget)
     reliable = bool(noise.get("reliable", True))
     base = evaluate(bound, sigma, folds, groups, budget=budget, seed=seed)
@@ -929,13 +936,6 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
     z = lambda ev: ev.resid / np.sqrt(sigma ** 2 + np.nan_to_num(ev.sim["spread"]) ** 2)  # noqa: E731
     corr = noise.get("correlated")
     cands, skipped = [], []
-    pool = applicable_effects(model, df)
-    if candidates is not None:
-        unknown = sorted(set(candidates) - {e.name for e in pool})
-        if unknown:
-            raise InputError(f"candidates {unknown} are not applicable effects of kind {model.kind} "
-                             f"(applicable: {', '.join(e.name for e in pool)})")
-        pool = [e for e in pool if e.name in set(candidates)]
     for eff in track(pool, "trying candidate effects", quiet=quiet):
         try:
             cands.append(fit_candidate(model, eff, df, base, data_path, budget, seed))
