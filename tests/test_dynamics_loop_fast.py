@@ -25,6 +25,12 @@ QUICK = DL.EFFORTS["quick"]
 PROTO = {"start": "rest", "transient_periods": 40, "recorded_periods": 16}
 DESIGN = pd.DataFrame({"f_Hz": np.tile([30.0, 34.0, 38.0], 2), "Pd_N": np.repeat([0.08, 0.10], 3)})
 CANDIDATES = ["secondary_constraint", "viscous_drag"]
+# ten conditions, periodic for the base model and away from a grazing point: (30 Hz, 0.10 N) of DESIGN sits on
+# one (the velocity there jumps between 0 and 16 mm/s as P_f moves by 4e-4 N), so a fold that leaves it out may
+# predict it badly and about a quarter of null seeds on DESIGN end in "the data cannot tell" (no finding); on
+# this design none of 45 did (benchmarks/dynamics_loop_calibration.py)
+TEN_DESIGN = pd.DataFrame({"f_Hz": np.tile([30.0, 32.0, 34.0, 36.0, 38.0], 2), "Pd_N": np.repeat([0.08, 0.12], 5)})
+ROLL_DESIGN = TEN_DESIGN
 FREE_PF = {"value": 0.03, "free": True, "bounds": [0.001, 0.2]}
 
 
@@ -81,7 +87,7 @@ def test_hidden_secondary_constraint_named_and_held_out_at_noise(tmp_path):
 
 def test_nothing_missing_gives_a_null_verdict(tmp_path):
     truth = _model(tmp_path, "truth_null", params={"Pf_N": 0.02})
-    r = _diagnose(tmp_path, truth, seed=3)
+    r = _diagnose(tmp_path, truth, seed=3, design=TEN_DESIGN)
     v = r["verdict"]
     assert v["outcome"] == "nothing_missing" and v["missing_effect"] is None, v["message"]
     assert v["regime"] is None and v["message"].startswith("nothing is missing")
@@ -103,7 +109,6 @@ from capsule_cli.effects import Param, register_effect
 def coil_rolloff(f_Hz, Pd_N, duty, p):
     return f_Hz, Pd_N * (1.0 - p["rolloff"] * (f_Hz - 30.0) / 10.0), duty
 '''
-ROLL_DESIGN = pd.DataFrame({"f_Hz": np.tile([30.0, 32.0, 34.0, 36.0, 38.0], 2), "Pd_N": np.repeat([0.08, 0.12], 5)})
 
 
 def _register(path):
