@@ -44,7 +44,7 @@ def bench_time(out: str | None, effort: str = "full") -> dict:
         df.to_csv(path, index=False)
         t0, c0 = time.perf_counter(), time.process_time()
         r = DL.run_diagnose(base, df, str(path), Path(tmp) / "diag", k_folds=5, seed=0, figures=False,
-                            budget=DL.EFFORTS[effort])
+                            budget=DL.EFFORTS[effort], quiet=False)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     rec = {"conditions": int(len(design)), "rows": int(len(df)), "synth_s": t_synth, "diagnose_s": wall,
            "diagnose_cpu_s": cpu, "effort": effort, "budget": r["budget"], "verdict": r["verdict"],
