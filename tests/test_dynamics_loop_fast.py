@@ -27,8 +27,8 @@ DESIGN = pd.DataFrame({"f_Hz": np.tile([30.0, 34.0, 38.0], 2), "Pd_N": np.repeat
 CANDIDATES = ["secondary_constraint", "viscous_drag"]
 # ten conditions, periodic for the base model and away from a grazing point: (30 Hz, 0.10 N) of DESIGN sits on
 # one (the velocity there jumps between 0 and 16 mm/s as P_f moves by 4e-4 N), so a fold that leaves it out may
-# predict it badly and about a quarter of null seeds on DESIGN end in "the data cannot tell" (no finding); on
-# this design none of 45 did (benchmarks/dynamics_loop_calibration.py)
+# predict it badly: 26 of 162 null seeds on DESIGN ended in "the data cannot tell" (no finding); on this design
+# none of 162 did (benchmarks/dynamics_loop_calibration_result.json)
 TEN_DESIGN = pd.DataFrame({"f_Hz": np.tile([30.0, 32.0, 34.0, 36.0, 38.0], 2), "Pd_N": np.repeat([0.08, 0.12], 5)})
 ROLL_DESIGN = TEN_DESIGN
 FREE_PF = {"value": 0.03, "free": True, "bounds": [0.001, 0.2]}
