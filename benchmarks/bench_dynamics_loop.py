@@ -32,7 +32,7 @@ from capsule_cli.steps.synth import read_design  # noqa: E402
 NOISE = 0.5
 
 
-def bench_time(out: str | None) -> dict:
+def bench_time(out: str | None, effort: str = "full") -> dict:
     truth = build_model(ROOT / "configs/models/progression_sdf_truth.yaml")
     base = build_model(ROOT / "configs/models/progression_base.yaml")
     design = read_design(ROOT / "configs/designs/progression_grid.csv", "progression")
@@ -42,12 +42,14 @@ def bench_time(out: str | None) -> dict:
         t_synth = time.perf_counter() - t0
         path = Path(tmp) / "progression_synthetic.csv"
         df.to_csv(path, index=False)
-        t0 = time.perf_counter()
-        r = DL.run_diagnose(base, df, str(path), Path(tmp) / "diag", k_folds=5, seed=0, figures=False)
-        wall = time.perf_counter() - t0
+        t0, c0 = time.perf_counter(), time.process_time()
+        r = DL.run_diagnose(base, df, str(path), Path(tmp) / "diag", k_folds=5, seed=0, figures=False,
+                            budget=DL.EFFORTS[effort], quiet=False)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     rec = {"conditions": int(len(design)), "rows": int(len(df)), "synth_s": t_synth, "diagnose_s": wall,
-           "budget": r["budget"], "verdict": r["verdict"],
-           "candidates": [{k: c[k] for k in ("effect", "cv_rmse", "seconds", "passes")} for c in r["candidates"]],
+           "diagnose_cpu_s": cpu, "effort": effort, "budget": r["budget"], "verdict": r["verdict"],
+           "candidates": [{k: c[k] for k in ("effect", "cv_rmse", "seconds", "evaluations", "passes")}
+                          for c in r["candidates"]],
            "skipped": r["skipped_candidates"]}
     print(json.dumps(rec, indent=2, default=str))
     if out:
@@ -90,9 +92,10 @@ def main() -> None:
     ap.add_argument("--out", default=None)
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--conditions", type=int, default=12)
+    ap.add_argument("--effort", default="full", choices=sorted(DL.EFFORTS))
     a = ap.parse_args()
     if a.what == "time":
-        bench_time(a.out)
+        bench_time(a.out, a.effort)
     else:
         bench_false_alarms(a.seeds, a.conditions)
 

@@ -14,6 +14,7 @@ names the file, the key and the closest valid key (exit code 2).
 from __future__ import annotations
 
 import difflib
+import functools
 import hashlib
 import json
 import math
@@ -187,9 +188,23 @@ def load_param_set_file(name_or_path: str | os.PathLike) -> ParamSetFile:
 def load_param_set(name_or_path: str | os.PathLike) -> dict[str, float]:
     """Return ``{name: value}`` of a parameter set, values in the unit of each name's suffix.
 
-    Convert with :func:`capsule_cli.units.to_si` (or use :func:`load_param_set_si`).
+    Convert with :func:`capsule_cli.units.to_si` (or use :func:`load_param_set_si`). Values are cached by
+    (path, modification time, size): the dynamics loop builds a system per model evaluation (thousands per
+    diagnose), and re-parsing the YAML was half the cost of a closed-form evaluation. A new dict each call.
     """
-    return {k: e.value for k, e in load_param_set_file(name_or_path).params.items()}
+    p = Path(name_or_path)
+    if p.suffix not in (".yaml", ".yml"):
+        p = param_set_path(str(name_or_path))
+    try:
+        st = p.stat()
+    except OSError:
+        return {k: e.value for k, e in load_param_set_file(p).params.items()}  # says why (one line, exit 2)
+    return dict(_param_values_cached(str(p), st.st_mtime_ns, st.st_size))
+
+
+@functools.lru_cache(maxsize=64)
+def _param_values_cached(path: str, mtime_ns: int, size: int) -> tuple:
+    return tuple((k, e.value) for k, e in load_param_set_file(path).params.items())
 
 
 def load_param_set_si(name_or_path: str | os.PathLike) -> dict[str, float]:

@@ -16,9 +16,10 @@ from capsule_cli.effects.model import build_model
 from capsule_cli.errors import InputError
 from capsule_cli.steps import dynamics_loop as DL
 
-# one worker: module fixtures run once; minutes of engine time on the opened engine: run by `make test-slow`,
-# not by CI's `make test`
-pytestmark = [pytest.mark.xdist_group("dynamics_loop"), pytest.mark.slow]
+# one worker: module fixtures run once. The diagnoses over all five candidates (marked slow) take minutes of
+# engine time each on the opened engine: run by `make test-slow`, not by CI's `make test`; the rest is cheap.
+# The CI-time loop tests are in tests/test_dynamics_loop_fast.py.
+pytestmark = [pytest.mark.xdist_group("dynamics_loop")]
 
 NOISE = 0.5  # generating noise SD [mm/s]
 BUDGET = DL.Budget(scan_per_param=4, starts=2, evals_per_param=40, fold_evals_per_param=8, bootstrap=0)
@@ -116,6 +117,7 @@ def hidden_sdf(tmp_path_factory):
     return _diagnose(tmp, truth), tmp
 
 
+@pytest.mark.slow
 def test_hidden_speed_dependent_friction_is_named_and_fits_to_noise(hidden_sdf):
     r, tmp = hidden_sdf
     v = r["verdict"]
@@ -139,6 +141,7 @@ def hidden_secondary(tmp_path_factory):
     return _diagnose(tmp, truth), tmp
 
 
+@pytest.mark.slow
 def test_hidden_secondary_constraint_is_named_and_fits_to_noise(hidden_secondary):
     r, _ = hidden_secondary
     assert r["verdict"]["missing_effect"] == "secondary_constraint", r["verdict"]["message"]
@@ -147,6 +150,7 @@ def test_hidden_secondary_constraint_is_named_and_fits_to_noise(hidden_secondary
     assert win["cv_rmse_not_irregular"] < 0.1 * r["model_as_is"]["cv_rmse"]
 
 
+@pytest.mark.slow
 def test_hidden_secondary_constraint_held_out_at_noise(hidden_secondary):
     # fold refits on 4 of 6 conditions; warm-started, a local refinement of the full fit
     r, _ = hidden_secondary
@@ -154,6 +158,7 @@ def test_hidden_secondary_constraint_held_out_at_noise(hidden_secondary):
     assert win["cv_rmse_not_irregular"] <= 1.2 * NOISE
 
 
+@pytest.mark.slow
 def test_null_data_gives_a_null_verdict(tmp_path):
     truth = _model(tmp_path, "truth_null", params={"Pf_N": 0.02}, free_pf=False)
     r = _diagnose(tmp_path, truth, seed=3)
@@ -163,6 +168,7 @@ def test_null_data_gives_a_null_verdict(tmp_path):
     assert all(not c["passes"] for c in r["candidates"])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("effect,params", [
     ("viscous_drag", {"drag_Ns_m": 0.02}),
     ("substrate_compliance", {"compliance_mm_N": 0.5}),

@@ -10,8 +10,8 @@ from capsule_cli.dynamics import system as dsys
 from capsule_cli.effects.model import build_model
 from capsule_cli.steps import dynamics_loop as DL
 
-# minutes of engine time on the opened engine: run by `make test-slow`, not by CI's `make test`
-pytestmark = pytest.mark.slow
+# about a second each since the loop's small batches run on one engine thread (issue 12 session 4): in CI
+pytestmark = pytest.mark.xdist_group("dynamics_loop")
 
 POS_NOISE = 0.05  # [mm]
 

@@ -145,6 +145,9 @@ def register(app: typer.Typer) -> None:
         folds: int = FOLDS,
         seed: int = SEED,
         effort: str = EFFORT,
+        candidate: Optional[List[str]] = typer.Option(None, "--candidate", help="Dynamics kinds: try only this "
+                                                      "effect (repeat the option; default every applicable one). "
+                                                      "The verdict's Bonferroni factor counts those tried."),
         plugins: Optional[List[Path]] = PLUGINS,
         drop_incomplete: bool = DROP,
         no_figures: bool = typer.Option(False, "--no-figures", help="Skip the figures (residuals, candidates, best "
@@ -162,8 +165,11 @@ def register(app: typer.Typer) -> None:
             from ..steps import dynamics_loop
 
             r = dynamics_loop.run_diagnose(m, df, str(data), out, write_model, folds, seed, add_best=add_best,
-                                           quiet=quiet, figures=not no_figures, budget=_effort(effort))
+                                           quiet=quiet, figures=not no_figures, budget=_effort(effort),
+                                           candidates=candidate or None)
         else:
+            if candidate:
+                raise InputError("--candidate: only for the dynamics kinds (progression, trajectory)")
             r = run_diagnose(m, df, k, str(data), out, write_model, folds, seed, add_best=add_best, quiet=quiet,
                              figures=not no_figures)
         if write_model is not None and r["verdict"]["missing_effect"] is None and not add_best:

@@ -221,8 +221,37 @@ def covariates_si(df: pd.DataFrame, response: str | None = None) -> dict[str, np
     return x
 
 
+class FreeParams:
+    """The free parameters of a model tied to a table (shared by :class:`BoundModel` and the dynamics loop's
+    ``DynBound``): needs ``self.model`` (a :class:`Model`) and ``self.free`` (its free :class:`ParamSpec` s).
+    Values in the unit of each name's suffix (as in the model file)."""
+
+    model: "Model"
+    free: list
+
+    @property
+    def names(self) -> list[str]:
+        return [s.key for s in self.free]
+
+    @property
+    def x0(self) -> np.ndarray:
+        return np.array([s.value for s in self.free], float)
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return (np.array([s.bounds[0] for s in self.free], float), np.array([s.bounds[1] for s in self.free], float))
+
+    def values(self, theta: Sequence[float] | None = None) -> dict[str, float]:
+        """Return ``{spec key: value}`` (declared units) with the free ones from ``theta``."""
+        vals = {s.key: s.value for s in self.model.specs}
+        if theta is not None:
+            for s, v in zip(self.free, theta):
+                vals[s.key] = float(v)
+        return vals
+
+
 @dataclass
-class BoundModel:
+class BoundModel(FreeParams):
     """A model tied to a table's covariates: ``predict(theta)`` in the response unit."""
 
     model: Model
@@ -263,28 +292,8 @@ class BoundModel:
     def n(self) -> int:
         return len(self.df)
 
-    @property
-    def names(self) -> list[str]:
-        return [s.key for s in self.free]
-
-    @property
-    def x0(self) -> np.ndarray:
-        return np.array([s.value for s in self.free], float)
-
-    @property
-    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        return (np.array([s.bounds[0] for s in self.free], float), np.array([s.bounds[1] for s in self.free], float))
-
     def observed(self) -> np.ndarray:
         return self.df[self.response].to_numpy(dtype=float)
-
-    def values(self, theta: Sequence[float] | None = None) -> dict[str, float]:
-        """Return ``{spec key: value}`` (declared units) with the free ones from ``theta``."""
-        vals = {s.key: s.value for s in self.model.specs}
-        if theta is not None:
-            for s, v in zip(self.free, theta):
-                vals[s.key] = float(v)
-        return vals
 
     def _params_si(self, vals: Mapping[str, float], owner: str, rows: np.ndarray | None) -> dict:
         out = {}

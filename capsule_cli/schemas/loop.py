@@ -28,6 +28,11 @@ class LoopStudy(Strict):
     dynamics_replicates: int = Field(default=2, ge=1, description="replicates per condition of the dynamics demo [-]")
     dynamics_effort: Literal["full", "quick"] = Field(default="full", description="calibration budget of the "
                                                       "dynamics demo (capsule-cli --effort)")
+    dynamics_demo: Literal["sdf", "secondary"] = Field(
+        default="sdf", description="hidden effect of the dynamics demo: speed_dependent_friction (sdf; adaptive "
+                                   "engine path) or secondary_constraint (closed form, the smoke run's)")
+    dynamics_candidates: list[str] = Field(default_factory=list, description="effects the dynamics demo's diagnose "
+                                           "tries (capsule-cli diagnose --candidate); empty: every applicable one")
     noise_sd_progression_mm_s: float = Field(default=0.5, ge=0, description="noise SD of the progression demo [mm/s]")
     published: bool = Field(default=True, description="also run the loops on the published seed values "
                                                       "(configs/data/)")

@@ -147,13 +147,15 @@ if LOOP.enabled:
 LOOP_DYN_PKG = LOOP_PKG + pkg("effects/dynamics.py", "steps/dynamics_loop.py", "dynamics/system.py",
                               "dynamics/engine.py", "dynamics/model.py")
 LOOP_DYN_DEMOS = {
-    # kind: (true model with the hidden effect, base model)
-    "progression": ("progression_sdf_truth.yaml", "progression_base.yaml"),
+    # (kind, loop.dynamics_demo): (true model with the hidden effect, base model)
+    ("progression", "sdf"): ("progression_sdf_truth.yaml", "progression_base.yaml"),
+    ("progression", "secondary"): ("progression_secondary_truth.yaml", "progression_base_short.yaml"),
 }
+LOOP_DYN_CANDIDATES = "".join(f" --candidate {c}" for c in LOOP.dynamics_candidates)
 
 
 def _dyn_model(w, i):
-    return str(CONFIGS / "models" / LOOP_DYN_DEMOS[w.dkind][i])
+    return str(CONFIGS / "models" / LOOP_DYN_DEMOS[(w.dkind, LOOP.dynamics_demo)][i])
 
 
 rule loop_dynamics_synth:
@@ -210,7 +212,8 @@ rule loop_dynamics_diagnose:
         f"{LOOP_DIR}/dyn_{{dkind}}/logs/diagnose.log",
     shell:
         "capsule-cli diagnose --model {input.model} --data {input.data} --out {params.out} "
-        "--write-model {output.model} --folds {params.folds} --effort {params.effort} --quiet 2> {log}"
+        "--write-model {output.model} --folds {params.folds} --effort {params.effort}"
+        + LOOP_DYN_CANDIDATES + " --quiet 2> {log}"
 
 
 rule loop_dynamics_compare_improved:

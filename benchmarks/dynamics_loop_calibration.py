@@ -1,0 +1,110 @@
+"""False-alarm rate of the dynamics loop's verdict (issue 12 item 7); a benchmark, not a test.
+
+Null progression data sets (the base model is the truth: one-sided Coulomb, P_f = 0.02 N, noise 0.5 mm/s,
+2 replicates) over many seeds and small designs, each given to ``diagnose`` with the base model (P_f free).
+Counts the outcomes of :func:`capsule_cli.steps.verdict.decide_verdict` (the rule shared with the
+quasi-static loop): a *finding* is a named effect (missing_effect) or a named covariate (not_built_in);
+"cannot tell" names nothing and is counted apart. The rule's budget is ALPHA_EFFECT + ALPHA_STRUCTURE = 2 %.
+
+Usage:
+    python benchmarks/dynamics_loop_calibration.py --seeds 100 [--effort quick]
+        [--candidates secondary_constraint,viscous_drag] [--out benchmarks/dynamics_loop_calibration_result.json]
+
+The result JSON is rewritten after every seed, so an interrupted run still reports the seeds done.
+Designs (alternating over seeds), responses periodic for the base model at P_f = 0.02 N:
+    six: f 30, 34, 38 Hz x P_d 0.08, 0.10 N (the CI tests' design)
+    ten: f 30, 32, 34, 36, 38 Hz x P_d 0.08, 0.12 N
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from capsule_cli.effects.model import build_model  # noqa: E402
+from capsule_cli.steps import dynamics_loop as DL  # noqa: E402
+from capsule_cli.steps.verdict import ALPHA_EFFECT, ALPHA_STRUCTURE  # noqa: E402
+
+NOISE = 0.5  # generating noise SD [mm/s]
+PROTO = {"start": "rest", "transient_periods": 40, "recorded_periods": 16}
+DESIGNS = {
+    "six": pd.DataFrame({"f_Hz": np.tile([30.0, 34.0, 38.0], 2), "Pd_N": np.repeat([0.08, 0.10], 3)}),
+    "ten": pd.DataFrame({"f_Hz": np.tile([30.0, 32.0, 34.0, 36.0, 38.0], 2), "Pd_N": np.repeat([0.08, 0.12], 5)}),
+}
+
+
+def _models(tmp: Path):
+    out = {}
+    for name, params in (("truth", {"Pf_N": 0.02}),
+                         ("base", {"Pf_N": {"value": 0.03, "free": True, "bounds": [0.001, 0.2]}})):
+        doc = {"kind": "progression", "base": "one_sided", "effects": [], "params": params, "protocol": PROTO}
+        (tmp / f"{name}.yaml").write_text(yaml.safe_dump(doc))
+        out[name] = build_model(tmp / f"{name}.yaml")
+    return out["truth"], out["base"]
+
+
+def run(seeds: int, effort: str, candidates: list[str] | None, out: str | None, first_seed: int = 0) -> dict:
+    budget = DL.EFFORTS[effort]
+    rows, t0 = [], time.perf_counter()
+    rec: dict = {}
+    with tempfile.TemporaryDirectory() as tmpd:
+        tmp = Path(tmpd)
+        truth, base = _models(tmp)
+        for s in range(first_seed, first_seed + seeds):
+            dname = list(DESIGNS)[s % len(DESIGNS)]
+            df = DL.synthesize_progression(truth, DESIGNS[dname], NOISE, 2, 10_000 + s)
+            path = tmp / f"null_{s}_synthetic.csv"
+            df.to_csv(path, index=False)
+            t1 = time.perf_counter()
+            r = DL.run_diagnose(base, df, str(path), tmp / f"d{s}", k_folds=3, seed=s, figures=False,
+                                budget=budget, candidates=candidates)
+            v = r["verdict"]
+            rows.append({"seed": s, "design": dname, "outcome": v["outcome"], "missing_effect": v["missing_effect"],
+                         "covariate": v["covariate"], "noise_sd": r["noise"]["sd"],
+                         "cv_rmse": r["model_as_is"]["cv_rmse"], "seconds": time.perf_counter() - t1})
+            print(f"seed {s} ({dname}): {v['outcome']} {v['missing_effect'] or v['covariate'] or ''}", flush=True)
+            outcomes = Counter(x["outcome"] for x in rows)
+            findings = sum(x["outcome"] in ("missing_effect", "not_built_in") for x in rows)
+            n = len(rows)
+            # exact (Clopper-Pearson) 95 % interval of the finding rate
+            from scipy import stats
+            lo = float(stats.beta.ppf(0.025, findings, n - findings + 1)) if findings else 0.0
+            hi = float(stats.beta.ppf(0.975, findings + 1, n - findings)) if findings < n else 1.0
+            rec = {"what": "false-alarm rate of the dynamics diagnose on null progression data",
+                   "budget_rule": ALPHA_EFFECT + ALPHA_STRUCTURE, "effort": effort,
+                   "candidates": candidates or "all applicable", "noise_sd_mm_s": NOISE, "protocol": PROTO,
+                   "designs": {k: d.to_dict(orient="list") for k, d in DESIGNS.items()},
+                   "data_sets": n, "findings": findings, "finding_rate": findings / n, "finding_rate_ci95": [lo, hi],
+                   "outcomes": dict(outcomes), "seconds": time.perf_counter() - t0, "runs": rows}
+            if out:
+                Path(out).write_text(json.dumps(rec, indent=1, default=str))
+    print(json.dumps({k: v for k, v in rec.items() if k != "runs"}, indent=1, default=str))
+    return rec
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", type=int, default=100)
+    ap.add_argument("--first-seed", type=int, default=0)
+    ap.add_argument("--effort", default="quick", choices=sorted(DL.EFFORTS))
+    ap.add_argument("--candidates", default="secondary_constraint,viscous_drag",
+                    help="comma-separated effects to try ('' for all applicable)")
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "dynamics_loop_calibration_result.json"))
+    a = ap.parse_args()
+    cands = [c for c in a.candidates.split(",") if c] or None
+    run(a.seeds, a.effort, cands, a.out, a.first_seed)
+
+
+if __name__ == "__main__":
+    main()
