@@ -17,10 +17,9 @@ import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable
+from typing import Iterable, Mapping
 
 import numpy as np
-import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
@@ -215,15 +214,88 @@ def check_frame(df: pd.DataFrame, schema: TableSchema) -> pd.DataFrame:
     return out.reset_index(drop=True)
 
 
-def write_table(df: pd.DataFrame, path: str | os.PathLike, schema: TableSchema,
+def write_table(df: pd.DataFrame | Mapping[str, np.ndarray], path: str | os.PathLike, schema: TableSchema,
                 prov: dict | None = None) -> Path:
-    """Write ``df`` as Parquet with units and provenance, atomically; return the path."""
-    df = check_frame(df, schema)
+    """Write ``df`` as Parquet with units and provenance, atomically; return the path.
+
+    ``df`` is a DataFrame, or a mapping of column name -> 1-D array (no pandas import: the
+    fast path of short commands; :func:`columns_table` makes the same file as the DataFrame would).
+    """
     meta = prov if prov is not None else provenance()
-    table = pa.Table.from_pandas(df, schema=schema.arrow_schema(df, meta), preserve_index=False)
+    if isinstance(df, Mapping):
+        table = columns_table(df, schema, meta)
+    else:
+        df = check_frame(df, schema)
+        table = pa.Table.from_pandas(df, schema=schema.arrow_schema(df, meta), preserve_index=False)
     with atomic_path(path) as tmp:
         pq.write_table(table, tmp)
     return Path(path)
+
+
+#: pandas' own names of the declared dtypes, for the ``pandas`` schema metadata (Arrow's pandas
+#: metadata format) that :func:`columns_table` writes so that reading back gives the same dtypes
+_PANDAS_TYPE = {"float64": ("float64", "float64"), "int64": ("int64", "int64"), "bool": ("bool", "bool"),
+                "string": ("unicode", "string")}
+
+
+def columns_table(columns: Mapping[str, np.ndarray], schema: TableSchema, meta: dict) -> pa.Table:
+    """Return the Arrow table of ``columns`` (name -> 1-D array) checked against ``schema``.
+
+    The same checks, column order, dtypes and metadata as the DataFrame path of :func:`write_table`
+    (:func:`check_frame`, :meth:`TableSchema.arrow_schema`), without importing pandas; only
+    declared columns are accepted here.
+    """
+    known = {c.name: c for c in schema.columns}
+    missing = [c.name for c in schema.columns if c.required and c.name not in columns]
+    if missing:
+        raise ValueError(f"table '{schema.name}' lacks columns {missing}")
+    extra = [c for c in columns if c not in known]
+    if extra:
+        raise ValueError(f"table '{schema.name}' has undeclared columns {extra} (use a DataFrame)")
+    cols = [c for c in schema.columns if c.name in columns]
+    lengths = {len(columns[c.name]) for c in cols}
+    if len(lengths) > 1:
+        raise ValueError(f"table '{schema.name}': columns of different lengths {sorted(lengths)}")
+    arrays, fields, pmeta = [], [], []
+    for c in cols:
+        arrays.append(_arrow_array(columns[c.name], c.dtype))
+        fields.append(pa.field(c.name, _ARROW[c.dtype],
+                               metadata={"unit": str(c.unit_text), "description": str(c.description)}))
+        pt, nt = _PANDAS_TYPE[c.dtype]
+        pmeta.append({"name": c.name, "field_name": c.name, "pandas_type": pt, "numpy_type": nt, "metadata": None})
+    pandas_meta = {"index_columns": [], "column_indexes": [], "columns": pmeta, "attributes": {},
+                   "creator": {"library": "pyarrow", "version": pa.__version__},
+                   "pandas_version": _pandas_version()}
+    sch = pa.schema(fields, metadata={PROVENANCE_KEY: json.dumps(_jsonable(meta)).encode(),
+                                      b"table": schema.name.encode(),
+                                      b"table_description": schema.description.encode(),
+                                      b"pandas": json.dumps(pandas_meta).encode()})
+    return pa.Table.from_arrays(arrays, schema=sch)
+
+
+def _arrow_array(values, dtype: str) -> pa.Array:
+    """A null-free Arrow array of ``values`` as ``dtype`` ("float64", "int64", "bool", "string").
+
+    Built from buffers: ``pa.array`` on NumPy input or Python strings imports pandas (about 0.2 s
+    of a short command's start-up).
+    """
+    if dtype == "string":
+        data = [str(x).encode("utf-8") for x in values]
+        offsets = np.zeros(len(data) + 1, dtype=np.int32)
+        np.cumsum([len(b) for b in data], out=offsets[1:])
+        return pa.StringArray.from_buffers(len(data), pa.py_buffer(offsets), pa.py_buffer(b"".join(data)))
+    arr = np.ascontiguousarray(np.asarray(values).astype(dtype))
+    if arr.ndim != 1:
+        raise ValueError(f"a table column must be 1-D, got shape {arr.shape}")
+    buf = np.packbits(arr, bitorder="little") if dtype == "bool" else arr
+    return pa.Array.from_buffers(_ARROW[dtype], arr.size, [None, pa.py_buffer(buf)])
+
+
+def _pandas_version() -> str:
+    """pandas' version string without importing pandas."""
+    from importlib.metadata import version
+
+    return version("pandas")
 
 
 def read_table(path: str | os.PathLike) -> pd.DataFrame:
@@ -297,6 +369,7 @@ SUPPORTED_STATISTICS = {"friction": ("avg",), "pressure": ("avg", "max")}
 
 def read_csv_with_comments(path: Path) -> pd.DataFrame:
     """Return a CSV table whose full-line ``#`` comments (citations, notes) are skipped."""
+    import pandas as pd
     with open(path, encoding="utf-8") as fh:
         lines = [ln for ln in fh if not ln.lstrip().startswith("#")]
     if not "".join(lines).strip():
@@ -307,6 +380,7 @@ def read_csv_with_comments(path: Path) -> pd.DataFrame:
 def text_label_columns(df: pd.DataFrame) -> list[str]:
     """Return columns without a unit suffix whose every non-empty cell is text (not a number): notes such as
     ``source_type``; they label rows and take no part in any model."""
+    import pandas as pd
     out = []
     for col in df.columns:
         if col in LABEL_COLUMNS or col in DIMENSIONLESS_COLUMNS or split_unit(col)[1] is not None:
@@ -354,6 +428,7 @@ def read_measurements(path: str | os.PathLike, kind: str | None = None,
     unit suffix. Bad input raises :class:`InputError` with one line naming the
     file, the column and the first offending row.
     """
+    import pandas as pd
     p = Path(path)
     if not p.is_file():
         _fail(p, "file not found")
@@ -489,6 +564,7 @@ def numeric_column(path, col: str, raw: pd.Series) -> np.ndarray:
     Rejects non-numeric cells, missing values, numbers a float64 cannot hold (overflow,
     inf), values below zero where :data:`NONNEGATIVE` says so, and duty outside (0, 1).
     """
+    import pandas as pd
     raw = raw.reset_index(drop=True)
     try:
         vals = pd.to_numeric(raw, errors="coerce").to_numpy(dtype=float, na_value=np.nan)
@@ -544,6 +620,7 @@ def is_synthetic(df: pd.DataFrame) -> bool:
 
 def covariate_columns(df: pd.DataFrame, kind: str) -> list[str]:
     """Return the numeric covariate columns of a measurement table (not the response)."""
+    import pandas as pd
     response = {"friction": "friction_mN", "pressure": "pressure_kPa", "relaxation": "pressure_kPa",
                 "progression": "velocity_mm_s", "trajectory": "capsule_mm"}[kind]
     return [c for c in df.columns if c != response and c not in LABEL_COLUMNS
@@ -573,6 +650,7 @@ def write_measurements(df: pd.DataFrame, path: str | os.PathLike, prov: dict) ->
 
 
 def _dtype_of(s: pd.Series) -> str:
+    import pandas as pd
     if pd.api.types.is_bool_dtype(s):
         return "bool"
     if pd.api.types.is_integer_dtype(s):

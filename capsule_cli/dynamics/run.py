@@ -8,7 +8,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-import pandas as pd
 
 from ..errors import InputError
 from . import engine as E
@@ -67,10 +66,11 @@ def check_status(status: int, t: float, friction: Friction | None = None, where:
     raise EngineFailure(f"{pre}engine status {status}")
 
 
-def _periods_frame(per: np.ndarray, f_Hz: float, n_transient: int) -> pd.DataFrame:
+def period_columns(per: np.ndarray, f_Hz: float, n_transient: int) -> dict[str, np.ndarray]:
+    """Columns of the per-period table (schema ``PERIODS`` of :mod:`capsule_cli.steps.dynamics`)."""
     T = 1.0 / f_Hz
     n = per.shape[0]
-    return pd.DataFrame({
+    return {
         "period": np.arange(n_transient, n_transient + n, dtype=np.int64),
         "time_s": (np.arange(n_transient, n_transient + n) * T).astype(float),
         "displacement_mm": per[:, E.P_DISP] * 1e3,
@@ -84,22 +84,76 @@ def _periods_frame(per: np.ndarray, f_Hz: float, n_transient: int) -> pd.DataFra
         "capsule_mm": per[:, E.P_XC0] * 1e3,
         "stick_fraction": per[:, E.P_STICK],
         "stick_events": per[:, E.P_NSTICK].astype(np.int64),
-    })
+    }
 
 
-def simulate(model: CapsuleModel, drive: Drive, friction: Friction, periods: int = 50,
-             transient_periods: int = 0, sample_rate_Hz: float = 0.0, state0=None,
-             options: EngineOptions | None = None, record_events: bool = True,
-             where: str = "") -> RunResult:
-    """Run the engine and return its records as tables.
+def _periods_frame(per: np.ndarray, f_Hz: float, n_transient: int):
+    import pandas as pd
 
-    Parameters
-    ----------
-    periods : recorded excitation periods (after the transient)
-    transient_periods : periods run first and not recorded
-    sample_rate_Hz : trajectory sampling rate [Hz] (0: no trajectory)
-    state0 : [x_r, v_r, X_c, V_c] [m, m/s] at t = 0 (default: rest)
-    """
+    return pd.DataFrame(period_columns(per, f_Hz, n_transient))
+
+
+def trajectory_columns(samples: np.ndarray) -> dict[str, np.ndarray]:
+    """Columns of the trajectory table from the engine's sample rows (SI -> mm, mm/s)."""
+    sm = samples
+    return {
+        "time_s": sm[:, E.S_T],
+        "magnet_mm": sm[:, E.S_XM] * 1e3,
+        "capsule_mm": sm[:, E.S_XC] * 1e3,
+        "magnet_velocity_mm_s": sm[:, E.S_VM] * 1e3,
+        "capsule_velocity_mm_s": sm[:, E.S_VC] * 1e3,
+        "relative_mm": sm[:, E.S_XR] * 1e3,
+        "contact": sm[:, E.S_CONTACT].astype(np.int64),
+        "stick": sm[:, E.S_STICK] > 0.5,
+        "Fi_N": sm[:, E.S_FI],
+    }
+
+
+def event_names(kinds: np.ndarray) -> np.ndarray:
+    """Names of the engine's event kind codes (``EVENT_KIND_NAMES``), as an object array."""
+    names = np.array([""] + [E.EVENT_KIND_NAMES[k] for k in range(1, max(E.EVENT_KIND_NAMES) + 1)], dtype=object)
+    return names[np.asarray(kinds).astype(np.int64)]
+
+
+def energy_record(energy: np.ndarray, computed: bool) -> dict:
+    """The energy balance of a run [J] from the engine's energy slots."""
+    work = energy[E.E_DRIVE]
+    diss = energy[E.E_DAMP] + energy[E.E_CONTACT] + energy[E.E_FRIC]
+    dstore = energy[E.E_END] - energy[E.E_START]
+    scale = max(abs(work), abs(diss), abs(dstore), 1e-300)
+    return {
+        "drive_work_J": float(work),
+        "spring_damping_J": float(energy[E.E_DAMP]),
+        "contact_damping_J": float(energy[E.E_CONTACT]),
+        "friction_J": float(energy[E.E_FRIC]),
+        "stored_start_J": float(energy[E.E_START]),
+        "stored_end_J": float(energy[E.E_END]),
+        "residual_J": float(work - diss - dstore),
+        "relative_residual": float((work - diss - dstore) / scale),
+        "computed": bool(computed),
+    }
+
+
+@dataclass
+class RawRun:
+    """Records of one run as arrays (no pandas): the fast path of ``simulate`` on the command line."""
+
+    samples: np.ndarray  # engine sample rows (S_* columns), SI
+    event_times_s: np.ndarray
+    event_kinds: np.ndarray  # engine kind codes (EVENT_KIND_NAMES)
+    per: np.ndarray  # per-period rows (P_* columns), SI
+    energy: dict
+    final_state: np.ndarray
+    frequency_Hz: float
+    transient_periods: int
+    params: np.ndarray = field(repr=False, default=None)
+
+
+def run_arrays(model: CapsuleModel, drive: Drive, friction: Friction, periods: int = 50,
+               transient_periods: int = 0, sample_rate_Hz: float = 0.0, state0=None,
+               options: EngineOptions | None = None, record_events: bool = True,
+               where: str = "") -> RawRun:
+    """Run the engine and return its records as arrays; arguments as :func:`simulate`."""
     model.validate()
     drive.validate()
     friction.validate()
@@ -120,37 +174,33 @@ def simulate(model: CapsuleModel, drive: Drive, friction: Friction, periods: int
     st, st_t, samples, ns, ev, nev, per, energy, final = E.run_core(
         p, opts, s0, int(transient_periods), int(periods), dt, n_samples, -1 if record_events else 0)
     check_status(int(st), float(st_t), friction, where)
-    sm = samples[:ns]
-    traj = pd.DataFrame({
-        "time_s": sm[:, E.S_T],
-        "magnet_mm": sm[:, E.S_XM] * 1e3,
-        "capsule_mm": sm[:, E.S_XC] * 1e3,
-        "magnet_velocity_mm_s": sm[:, E.S_VM] * 1e3,
-        "capsule_velocity_mm_s": sm[:, E.S_VC] * 1e3,
-        "relative_mm": sm[:, E.S_XR] * 1e3,
-        "contact": sm[:, E.S_CONTACT].astype(np.int64),
-        "stick": sm[:, E.S_STICK] > 0.5,
-        "Fi_N": sm[:, E.S_FI],
-    })
+    return RawRun(samples=samples[:ns], event_times_s=ev[:nev, 0], event_kinds=ev[:nev, 1], per=per,
+                  energy=energy_record(energy, (options or EngineOptions()).energy), final_state=final,
+                  frequency_Hz=drive.frequency_Hz, transient_periods=int(transient_periods), params=p)
+
+
+def simulate(model: CapsuleModel, drive: Drive, friction: Friction, periods: int = 50,
+             transient_periods: int = 0, sample_rate_Hz: float = 0.0, state0=None,
+             options: EngineOptions | None = None, record_events: bool = True,
+             where: str = "") -> RunResult:
+    """Run the engine and return its records as tables.
+
+    Parameters
+    ----------
+    periods : recorded excitation periods (after the transient)
+    transient_periods : periods run first and not recorded
+    sample_rate_Hz : trajectory sampling rate [Hz] (0: no trajectory)
+    state0 : [x_r, v_r, X_c, V_c] [m, m/s] at t = 0 (default: rest)
+    """
+    import pandas as pd
+
+    r = run_arrays(model, drive, friction, periods, transient_periods, sample_rate_Hz, state0, options,
+                   record_events, where)
+    traj = pd.DataFrame(trajectory_columns(r.samples))
     names = np.array([""] + [E.EVENT_KIND_NAMES[k] for k in range(1, max(E.EVENT_KIND_NAMES) + 1)], dtype=object)
     evs = pd.DataFrame({
-        "time_s": ev[:nev, 0],
-        "kind": pd.Categorical(names[ev[:nev, 1].astype(np.int64)], categories=list(names[1:])),
+        "time_s": r.event_times_s,
+        "kind": pd.Categorical(event_names(r.event_kinds), categories=list(names[1:])),
     })
-    work = energy[E.E_DRIVE]
-    diss = energy[E.E_DAMP] + energy[E.E_CONTACT] + energy[E.E_FRIC]
-    dstore = energy[E.E_END] - energy[E.E_START]
-    scale = max(abs(work), abs(diss), abs(dstore), 1e-300)
-    en = {
-        "drive_work_J": float(work),
-        "spring_damping_J": float(energy[E.E_DAMP]),
-        "contact_damping_J": float(energy[E.E_CONTACT]),
-        "friction_J": float(energy[E.E_FRIC]),
-        "stored_start_J": float(energy[E.E_START]),
-        "stored_end_J": float(energy[E.E_END]),
-        "residual_J": float(work - diss - dstore),
-        "relative_residual": float((work - diss - dstore) / scale),
-        "computed": bool((options or EngineOptions()).energy),
-    }
-    return RunResult(trajectory=traj, events=evs, periods=_periods_frame(per, drive.frequency_Hz, transient_periods),
-                     energy=en, final_state=final, frequency_Hz=drive.frequency_Hz, params=p)
+    return RunResult(trajectory=traj, events=evs, periods=_periods_frame(r.per, drive.frequency_Hz, transient_periods),
+                     energy=r.energy, final_state=r.final_state, frequency_Hz=drive.frequency_Hz, params=r.params)

@@ -13,7 +13,6 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-import pandas as pd
 
 from ..errors import InputError
 from . import engine as E
@@ -83,6 +82,7 @@ def run_sweep(model: CapsuleModel, drive: Drive, friction: Friction, name: str, 
 
     The sweep table column ``value`` is in the unit of ``name``'s suffix.
     """
+    import pandas as pd
     if protocol not in PROTOCOLS:
         raise InputError(f"unknown protocol '{protocol}' (one of {', '.join(PROTOCOLS)})")
     if name not in SWEEPABLE:

@@ -20,7 +20,6 @@ from dataclasses import dataclass, field, replace
 from typing import Mapping, Sequence
 
 import numpy as np
-import pandas as pd
 
 from ..config import load_param_set
 from ..errors import InputError
@@ -247,6 +246,7 @@ def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmo
     the recorded periods split into 4 windows). Protocol up/down: continuation in f within each
     (P_d, duty), from rest at the first frequency.
     """
+    import pandas as pd
     protocol = protocol.validate()
     f_in, Pd, D, drives = _conditions(f_Hz, Pd_N, duty, waveform, system)
     f = np.array([d.frequency_Hz for d in drives])  # the driven frequency (after plugin transforms)

@@ -10,7 +10,6 @@ from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from ..errors import InputError
 from ..tables import Column, TableSchema, provenance, write_json_atomic, write_table
@@ -132,29 +131,31 @@ def simulate_to_dir(out: Path, model: CapsuleModel, drive: Drive, friction: Fric
                     transient_periods: int, sample_rate_Hz: float, model_name: str = "",
                     options: EngineOptions | None = None) -> dict:
     """Run once; write trajectory, events, periods (Parquet) and summary.json under ``out``."""
-    res = simulate(model, drive, friction, periods=periods, transient_periods=transient_periods,
-                   sample_rate_Hz=sample_rate_Hz, options=options)
+    from ..dynamics.run import event_names, period_columns, run_arrays, trajectory_columns
+
+    # arrays straight to Parquet: no pandas on this path (start-up of a short `simulate`, issue 13)
+    res = run_arrays(model, drive, friction, periods=periods, transient_periods=transient_periods,
+                     sample_rate_Hz=sample_rate_Hz, options=options)
     prov = _prov(model_name=model_name, model=model, drive=drive, friction=friction, periods=periods,
                  transient_periods=transient_periods, sample_rate_Hz=sample_rate_Hz)
     out = Path(out)
-    write_table(res.trajectory, out / "trajectory.parquet", TRAJECTORY, prov)
-    ev = res.events.copy()
-    ev["kind"] = ev["kind"].astype("string")
-    write_table(ev, out / "events.parquet", EVENTS, prov)
-    write_table(res.periods, out / "periods.parquet", PERIODS, prov)
-    per = res.periods
+    write_table(trajectory_columns(res.samples), out / "trajectory.parquet", TRAJECTORY, prov)
+    write_table({"time_s": res.event_times_s, "kind": event_names(res.event_kinds)}, out / "events.parquet",
+                EVENTS, prov)
+    per = period_columns(res.per, drive.frequency_Hz, transient_periods)
+    write_table(per, out / "periods.parquet", PERIODS, prov)
+    n = len(per["period"])
     from ..dynamics.sweep import period_number
     summary = {
         "model": model_name, "drive": asdict(drive), "friction": asdict(friction),
         "periods": periods, "transient_periods": transient_periods,
-        "average_velocity_mm_s": res.average_velocity_mm_s,
-        "impacts_per_period": float(per["impacts"].mean()) if len(per) else None,
-        "max_Fi_N": float(per["max_Fi_N"].max()) if len(per) else None,
-        "Af": float(per["max_Fi_N"].max() / drive.amplitude_N) if (len(per) and drive.amplitude_N > 0) else None,
-        "period_number": period_number(per["relative_mm"].to_numpy(), per["relative_velocity_mm_s"].to_numpy())
-        if len(per) else None,
-        "stick_fraction": float(per["stick_fraction"].mean()) if len(per) else None,
-        "n_events": int(len(res.events)),
+        "average_velocity_mm_s": float(per["displacement_mm"].mean() * drive.frequency_Hz) if n else float("nan"),
+        "impacts_per_period": float(per["impacts"].mean()) if n else None,
+        "max_Fi_N": float(per["max_Fi_N"].max()) if n else None,
+        "Af": float(per["max_Fi_N"].max() / drive.amplitude_N) if (n and drive.amplitude_N > 0) else None,
+        "period_number": period_number(per["relative_mm"], per["relative_velocity_mm_s"]) if n else None,
+        "stick_fraction": float(per["stick_fraction"].mean()) if n else None,
+        "n_events": int(len(res.event_times_s)),
         "energy_balance": res.energy,
         "final_state": {"relative_mm": res.final_state[0] * 1e3, "relative_velocity_mm_s": res.final_state[1] * 1e3,
                         "capsule_mm": res.final_state[2] * 1e3, "capsule_velocity_mm_s": res.final_state[3] * 1e3},
@@ -276,6 +277,7 @@ def magnify_table(model: CapsuleModel, Pd_values, f_values, frictions, protocol:
     Rows: frictions in the given order, then P_d, then f (ascending as given). ``timings``, if
     given, receives the wall time [s] of each friction by label.
     """
+    import pandas as pd
     import time
 
     Pd = np.asarray(Pd_values, dtype=float)
@@ -312,6 +314,7 @@ def gather_magnify(tables: list[pd.DataFrame], order: list[str] | None = None) -
     missing from ``order``, or a friction whose (P_d, f) grid is incomplete (when the chunks'
     provenance gives the grid).
     """
+    import pandas as pd
     if not tables:
         raise InputError("magnify --gather: no chunk tables given")
     if len({tuple(dict.fromkeys(t["protocol"].tolist())) for t in tables}) != 1:
@@ -526,6 +529,7 @@ def plain(text: str) -> str:
 
 def landmark_table(sweeps: list[tuple[str, str, str, pd.DataFrame]]) -> pd.DataFrame:
     """Return the landmarks of each (case label, figure, protocol, points) beside the paper's values."""
+    import pandas as pd
     rows = []
     for label, figure, protocol, points in sweeps:
         found = find_landmarks(points)
@@ -673,6 +677,7 @@ def duty_map_summary(dm: pd.DataFrame) -> str:
 
 def report(out: Path, sweeps: list[str], duty_sweeps: list[str], magnify: Path | None) -> list[Path]:
     """Write the landmark table and the figures of the dynamics study from sweep folders."""
+    import pandas as pd
     import json
 
     from ..plots import dynamics as P
