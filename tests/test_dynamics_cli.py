@@ -25,6 +25,38 @@ def test_simulate_writes_tables_with_units(tmp_path):
     assert s["impacts_per_period"] == 1.0 and abs(s["energy_balance"]["relative_residual"]) < 1e-10
 
 
+def test_simulate_tables_equal_the_dataframe_run_and_skip_pandas(tmp_path):
+    """The command's array path (issue 13 start-up) writes what simulate()'s DataFrames hold; no pandas import."""
+    import subprocess
+    import sys
+
+    import numpy as np
+
+    from capsule_cli.dynamics import Drive, friction_preset, load_model, simulate
+
+    out = tmp_path / "run"
+    code = ("import sys; from capsule_cli.cli import main; rc = main(sys.argv[1:]); "
+            "assert 'pandas' not in sys.modules and 'matplotlib' not in sys.modules, 'heavy import'; "
+            "sys.exit(rc)")
+    r = subprocess.run([sys.executable, "-c", code, "simulate", "--out", str(out), "--f-Hz", "35", "--Pd-N", "0.15",
+                        "--Pf-N", "0.0078", "--periods", "4", "--transient-periods", "10", "--quiet"],
+                       capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1])
+    assert r.returncode == 0, r.stderr
+    m, _ = load_model("prototype_one_sided")
+    res = simulate(m, Drive(0.15, 35.0), friction_preset("coulomb", 0.0078), periods=4, transient_periods=10,
+                   sample_rate_Hz=5000.0)
+    ev = res.events.copy()
+    ev["kind"] = ev["kind"].astype("string")
+    for name, df in (("trajectory", res.trajectory), ("events", ev), ("periods", res.periods)):
+        got = read_table(out / f"{name}.parquet")
+        assert list(got.columns) == list(df.columns) and len(got) == len(df) > 0
+        for c in df.columns:
+            assert np.array_equal(got[c].to_numpy(), df[c].to_numpy()), (name, c)
+    s = json.loads((out / "summary.json").read_text())
+    assert s["average_velocity_mm_s"] == res.average_velocity_mm_s
+    assert s["n_events"] == len(res.events) and s["max_Fi_N"] == res.periods["max_Fi_N"].max()
+
+
 def test_sweep_and_report(tmp_path):
     d = tmp_path / "sw"
     assert main(["sweep", "--out", str(d), "--start", "30", "--stop", "36", "--num", "4", "--protocol", "up",

@@ -77,3 +77,35 @@ def test_extra_covariate_with_known_unit_is_kept(tmp_path):
     p = _write(tmp_path, "speed_mm_s,friction_mN,temperature_C\n1,2,37\n")
     df, kind = tables.read_measurements(p)
     assert "temperature_C" in tables.covariate_columns(df, kind)
+
+
+ALL_TYPES = tables.TableSchema("types", "one row per sample", (
+    tables.Column("time_s", "float64", "time"),
+    tables.Column("count", "int64", "a count", unit=""),
+    tables.Column("flag", "bool", "a flag", unit=""),
+    tables.Column("kind", "string", "a label", unit=""),
+))
+
+
+def test_columns_path_writes_the_same_file_as_the_dataframe_path(tmp_path):
+    """write_table from arrays (no pandas, issue 13 start-up) = from a DataFrame: data, schema, dtypes."""
+    import numpy as np
+    import pyarrow.parquet as pq
+
+    cols = {"time_s": np.array([0.0, 0.5, 1.25, -3.0, 7e-9]), "count": np.array([3, 0, -2, 7, 11]),
+            "flag": np.array([True, False, True, True, False, ]), "kind": np.array(["a", "", "stick", "é", "b"],
+                                                                                      dtype=object)}
+    prov = tables.provenance(seed=1)
+    a, b = tmp_path / "a.parquet", tmp_path / "b.parquet"
+    tables.write_table(pd.DataFrame({**cols, "kind": pd.array(cols["kind"], dtype="string")}), a, ALL_TYPES, prov)
+    tables.write_table(cols, b, ALL_TYPES, prov)
+    ta, tb = pq.read_table(a), pq.read_table(b)
+    assert ta.equals(tb) and ta.schema.equals(tb.schema, check_metadata=True)
+    da, db = tables.read_table(a), tables.read_table(b)
+    assert da.dtypes.equals(db.dtypes) and da.equals(db)
+    assert db["flag"].tolist() == [True, False, True, True, False]
+    with pytest.raises(ValueError, match="lacks columns"):
+        tables.write_table({"time_s": cols["time_s"]}, tmp_path / "c.parquet", ALL_TYPES, prov)
+    with pytest.raises(ValueError, match="undeclared"):
+        tables.write_table({**cols, "x_mm": cols["time_s"]}, tmp_path / "c.parquet", ALL_TYPES, prov)
+    assert not (tmp_path / "c.parquet").exists()
