@@ -203,6 +203,9 @@ def register(app: typer.Typer) -> None:
         figure: Optional[Path] = typer.Option(None, "--figure", help="also draw the maps to this PNG/PDF"),
         scale: str = typer.Option("shared", "--scale", help="colour scale of the figure: shared (all panels) or "
                                   "panel (one per panel)"),
+        rk_rtol: Optional[float] = typer.Option(None, "--rk-rtol", help="relative tolerance of the speed-law "
+                                                "(eq22/eq23) panels' adaptive integration [-] (default: rk_rtol of "
+                                                "configs/bench/fig19.yaml; Coulomb panels are exact)"),
         quiet: bool = QUIET,
     ):
         """Magnification factor maps A_f = max|F_i|/P_d over (P_d, f) (seed 000 eq 24, Fig 19)."""
@@ -210,7 +213,8 @@ def register(app: typer.Typer) -> None:
         import numpy as np
 
         from ..progress import compile_notice, exit_on_interrupt, task
-        from ..steps.dynamics import MAGNIFY, gather_magnify_files, load_fig19, magnify_table, resolve_model
+        from ..steps.dynamics import (MAGNIFY, gather_magnify_files, load_fig19, magnify_table, map_rk_rtol,
+                                      resolve_model)
         from ..tables import provenance, write_table
 
         if scale not in ("shared", "panel"):
@@ -230,6 +234,10 @@ def register(app: typer.Typer) -> None:
                 frictions = ["0.007"]
             if Pd_num < 1 or f_num < 1:
                 raise InputError("--Pd-num and --f-num must be >= 1")
+            if rk_rtol is None:
+                rk_rtol = map_rk_rtol()
+            if not (math.isfinite(rk_rtol) and 1e-14 <= rk_rtol <= 1e-4):
+                raise InputError(f"--rk-rtol {rk_rtol:g}: expected a tolerance in [1e-14, 1e-4]")
             m, _ = resolve_model(model, _parse_set(set_))
             Pd = np.linspace(Pd_start_N, Pd_stop_N, Pd_num)
             f = np.linspace(f_start_Hz, f_stop_Hz, f_num)
@@ -245,11 +253,12 @@ def register(app: typer.Typer) -> None:
                 Pd = Pd[a:b]
             compile_notice(quiet)
             with exit_on_interrupt(), task("magnify", len(frictions) * Pd.size * f.size, quiet) as advance:
-                df = magnify_table(m, Pd, f, frictions, protocol, transient_periods, periods, progress=advance)
+                df = magnify_table(m, Pd, f, frictions, protocol, transient_periods, periods, progress=advance,
+                                   rk_rtol=rk_rtol)
             prov = provenance(model_name=model, protocol=protocol, transient_periods=transient_periods,
                               periods=periods, frictions=[str(x) for x in frictions],
                               Pd_grid_N=[Pd_start_N, Pd_stop_N, Pd_num], f_grid_Hz=[f_start_Hz, f_stop_Hz, f_num],
-                              Pd_rows=rows)
+                              Pd_rows=rows, rk_rtol=rk_rtol)
         write_table(df, out, MAGNIFY, prov)
         if figure is not None:
             from ..plots.dynamics import magnify_figure

@@ -256,6 +256,7 @@ def run_fig19_bench(Pd_num: int | None = None, f_num: int | None = None, frictio
     f = np.linspace(cfg["f_start_Hz"], cfg["f_stop_Hz"], n_f)
     nt, nr = int(cfg["transient_periods"]), int(cfg["recorded_periods"])
     specs = list(frictions or cfg["frictions"])
+    rk_rtol = float(cfg["rk_rtol"])  # the maps' tolerance of the speed-law panels' adaptive segment
     # warm up: load (or compile) the engine outside the timings
     magnify_arrays(model, Pd[:1], f[:2], friction_preset("coulomb", 0.007), cfg["protocol"], 2, 1)
     per_fr = {}
@@ -265,7 +266,7 @@ def run_fig19_bench(Pd_num: int | None = None, f_num: int | None = None, frictio
     for spec in specs:
         label, fr, _ = magnify_friction(spec)
         t0 = time.perf_counter()
-        a = magnify_arrays(model, Pd, f, fr, cfg["protocol"], nt, nr, progress=progress)
+        a = magnify_arrays(model, Pd, f, fr, cfg["protocol"], nt, nr, progress=progress, rk_rtol=rk_rtol)
         per_fr[label] = time.perf_counter() - t0
         total += per_fr[label]
         i, j = np.unravel_index(np.nanargmax(a["Af"]), a["Af"].shape)
@@ -306,6 +307,8 @@ def run_fig19_bench(Pd_num: int | None = None, f_num: int | None = None, frictio
                                    f"steps capped at 1/{baseline_steps_per_period:g} of the fastest modal period; "
                                    "engine best of 3, solve_ivp best of 2",
         "solve_ivp_over_engine_median": float(np.median([v["solve_ivp_over_engine"] for v in sample.values()])),
+        "rk_rtol": rk_rtol,
+        "rk_rtol_note": "relative tolerance of the adaptive (speed-law) segment in the maps, configs/bench/fig19.yaml",
         "threads": int(numba.get_num_threads()),
         "machine": {"python": platform.python_version(), "processor": platform.processor() or platform.machine()},
     }

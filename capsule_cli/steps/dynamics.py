@@ -205,6 +205,12 @@ def magnify_friction(spec) -> tuple[str, Friction, float]:
     return f"{level:g}", friction_preset("coulomb", level), level
 
 
+def map_rk_rtol() -> float:
+    """The adaptive segment's relative tolerance for magnification maps [-] (``rk_rtol`` of
+    configs/bench/fig19.yaml, where its measured effect on A_f is stated)."""
+    return float(load_fig19()["rk_rtol"])
+
+
 def load_fig19(path: Path | None = None) -> dict:
     """Return the seed 000 Fig 19 set (configs/bench/fig19.yaml): frictions, grid, periods, protocol."""
     from ..config import configs_dir, read_yaml
@@ -213,11 +219,14 @@ def load_fig19(path: Path | None = None) -> dict:
 
 
 def magnify_arrays(model: CapsuleModel, Pd_values, f_values, friction: Friction, protocol: str,
-                   transient_periods: int, periods: int, progress=None, target_chunk_s: float | None = None):
+                   transient_periods: int, periods: int, progress=None, target_chunk_s: float | None = None,
+                   rk_rtol: float | None = None):
     """A_f and friends over the (P_d, f) grid of one friction, as (n_Pd, n_f) arrays.
 
     rest: every point from rest, all points in parallel chunks; up/down: continuation along f
     (increasing / decreasing) from rest at the first frequency, all P_d rows in parallel.
+    ``rk_rtol``: relative tolerance of the adaptive segment (speed-law slip, eqs 22-23); None:
+    the engine's default (:class:`EngineOptions`). Exact (Coulomb, fixed-shell) modes ignore it.
     Returns a dict of arrays Af, max_Fi_N, impacts_per_period, velocity_mm_s.
     """
     from ..dynamics import engine as E
@@ -247,7 +256,8 @@ def magnify_arrays(model: CapsuleModel, Pd_values, f_values, friction: Friction,
     for i, a in enumerate(Pd):
         for jj, j in enumerate(order):
             P[i, jj] = pack_params(model, Drive(float(a), float(f[j])), friction)
-    opts = EngineOptions(energy=False).pack()
+    opts = (EngineOptions(energy=False) if rk_rtol is None else
+            EngineOptions(energy=False, rk_rtol=float(rk_rtol))).pack()
     if protocol == "rest":
         st, per, _ = run_points(P.reshape(-1, E.N_PARAMS), opts, np.zeros((P.shape[0] * P.shape[1], 4)),
                                 int(transient_periods), int(periods), progress=progress,
@@ -271,11 +281,12 @@ def magnify_arrays(model: CapsuleModel, Pd_values, f_values, friction: Friction,
 
 
 def magnify_table(model: CapsuleModel, Pd_values, f_values, frictions, protocol: str, transient_periods: int,
-                  periods: int, progress=None, timings: dict | None = None) -> pd.DataFrame:
+                  periods: int, progress=None, timings: dict | None = None,
+                  rk_rtol: float | None = None) -> pd.DataFrame:
     """Return A_f over (P_d, f) for each friction (Coulomb level [N], inf, 'eq22', 'eq23'), one table.
 
     Rows: frictions in the given order, then P_d, then f (ascending as given). ``timings``, if
-    given, receives the wall time [s] of each friction by label.
+    given, receives the wall time [s] of each friction by label. ``rk_rtol``: see :func:`magnify_arrays`.
     """
     import pandas as pd
     import time
@@ -289,7 +300,8 @@ def magnify_table(model: CapsuleModel, Pd_values, f_values, frictions, protocol:
     parts = []
     for label, fr, pf in parsed:
         t0 = time.perf_counter()
-        a = magnify_arrays(model, Pd, f, fr, protocol, transient_periods, periods, progress=progress)
+        a = magnify_arrays(model, Pd, f, fr, protocol, transient_periods, periods, progress=progress,
+                           rk_rtol=rk_rtol)
         if timings is not None:
             timings[label] = time.perf_counter() - t0
         parts.append((label, pf, a))
