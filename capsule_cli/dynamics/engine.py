@@ -1446,13 +1446,20 @@ def dop853_dense(p, contact, sg, s, h, fe_level, y, y1, K, yt, rc):
 
 
 @njit(cache=True)
-def rk_step_factor(err, rejected):
-    """Step-size factor after a step of scaled error ``err`` (safety 0.9, within [0.2, 5]; no
-    growth right after a rejection)."""
+def rk_step_factor(err, rejected, err_old, h_ratio):
+    """Step-size factor after an accepted step of scaled error ``err`` (safety 0.9, within [0.2, 5];
+    no growth right after a rejection). With the previous accepted step's error ``err_old`` > 0 and
+    ``h_ratio`` = this step / that step, the factor is also capped by Gustafsson's predictive
+    controller (K. Gustafsson, ACM Trans. Math. Softw. 20 (1994) 496-517; E. Hairer, G. Wanner,
+    "Solving ODEs II", section IV.8), which foresees a growing error (as the slip speed nears
+    V_min, where the law's derivatives grow) and so avoids some rejected steps."""
     if err == 0.0:
         fac = 5.0
     else:
-        fac = min(5.0, max(0.2, 0.9 * err ** -RK_ORDER_EXP))
+        fac = 0.9 * err ** -RK_ORDER_EXP
+        if err_old > 0.0:
+            fac = min(fac, fac * h_ratio * (err_old / err) ** RK_ORDER_EXP)
+        fac = min(5.0, max(0.2, fac))
     if rejected and fac > 1.0:
         fac = 1.0
     return fac
@@ -2167,6 +2174,8 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             atol_v = rtol * p[I_VS]
             nsteps = 0
             rk_rej = False
+            rk_err_old = 0.0
+            rk_h_old = 1.0
             g0 = np.zeros(4)
             for j in range(4):
                 g0[j] = rk_event_value(p, contact, sg, vlo, vhi, j, y)
@@ -2324,7 +2333,10 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                     k1[i] = k7[i]
                 if tau >= tau_end:
                     break
-                hh *= rk_step_factor(err, rk_rej)
+                fac = rk_step_factor(err, rk_rej, rk_err_old, hh / rk_h_old)
+                rk_err_old = max(err, 1e-4)
+                rk_h_old = hh
+                hh *= fac
                 rk_rej = False
             if status != STATUS_OK:
                 break
