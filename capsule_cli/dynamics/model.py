@@ -377,8 +377,9 @@ def pack_params(model: CapsuleModel, drive: Drive, friction: Friction) -> np.nda
 @dataclass
 class EngineOptions:
     """Numerical options: samples_per_fast_period (bracketing grid, 1/N of the fastest modal
-    period), energy (accumulate the energy balance), rk_rtol (relative tolerance of the speed-law slip's DOP853), zeno_max
-    (zero-length events tolerated in a row), rk_max_steps (per segment), exact_general_modes
+    period), energy (accumulate the energy balance), rk_rtol (relative tolerance of the speed-law
+    slip's DOP853), zeno_max (zero-length events tolerated in a row), rk_max_steps (per segment),
+    exact_general_modes
     (solve the linear modes of drag, tilt and substrate compliance exactly; False integrates them on
     the adaptive path, a cross-check)."""
 
