@@ -88,15 +88,16 @@ def test_map_tolerance_leaves_coulomb_exact_and_moves_a_speed_law_point_little()
     (relative) between 1e-9 and the engine's default 1e-11."""
     from capsule_cli.steps.dynamics import magnify_arrays, map_rk_rtol
 
-    assert map_rk_rtol() == 1e-9
+    assert map_rk_rtol() == 1e-9 and EngineOptions().rk_rtol == 1e-11
     m, _ = load_model("prototype_one_sided")
     Pd, f = np.array([0.15]), np.array([30.0])
-    a = magnify_arrays(m, Pd, f, friction_preset("coulomb", 0.17), "rest", 50, 10, rk_rtol=1e-9)
-    b = magnify_arrays(m, Pd, f, friction_preset("coulomb", 0.17), "rest", 50, 10)
+    a = magnify_arrays(m, Pd, f, friction_preset("coulomb", 0.17), "rest", 50, 10)  # the maps' default
+    b = magnify_arrays(m, Pd, f, friction_preset("coulomb", 0.17), "rest", 50, 10, rk_rtol=1e-11)
     assert a["Af"][0, 0] == b["Af"][0, 0]
     for law in ("eq22", "eq23"):
-        a = magnify_arrays(m, Pd, f, friction_preset(law), "rest", 100, 10, rk_rtol=1e-9)
-        b = magnify_arrays(m, Pd, f, friction_preset(law), "rest", 100, 10)
-        assert EngineOptions().rk_rtol == 1e-11
+        a = magnify_arrays(m, Pd, f, friction_preset(law), "rest", 100, 10)
+        a9 = magnify_arrays(m, Pd, f, friction_preset(law), "rest", 100, 10, rk_rtol=1e-9)
+        b = magnify_arrays(m, Pd, f, friction_preset(law), "rest", 100, 10, rk_rtol=1e-11)
+        assert a["Af"][0, 0] == a9["Af"][0, 0]
         assert math.isfinite(a["Af"][0, 0]) and a["Af"][0, 0] > 1
         assert abs(a["Af"][0, 0] - b["Af"][0, 0]) < 1e-5 * b["Af"][0, 0], law

@@ -225,8 +225,8 @@ def magnify_arrays(model: CapsuleModel, Pd_values, f_values, friction: Friction,
 
     rest: every point from rest, all points in parallel chunks; up/down: continuation along f
     (increasing / decreasing) from rest at the first frequency, all P_d rows in parallel.
-    ``rk_rtol``: relative tolerance of the adaptive segment (speed-law slip, eqs 22-23); None:
-    the engine's default (:class:`EngineOptions`). Exact (Coulomb, fixed-shell) modes ignore it.
+    ``rk_rtol``: relative tolerance of the adaptive segment (speed-law slip, eqs 22-23); None: the
+    maps' tolerance (:func:`map_rk_rtol`). Exact (Coulomb, fixed-shell) modes ignore it.
     Returns a dict of arrays Af, max_Fi_N, impacts_per_period, velocity_mm_s.
     """
     from ..dynamics import engine as E
@@ -256,8 +256,7 @@ def magnify_arrays(model: CapsuleModel, Pd_values, f_values, friction: Friction,
     for i, a in enumerate(Pd):
         for jj, j in enumerate(order):
             P[i, jj] = pack_params(model, Drive(float(a), float(f[j])), friction)
-    opts = (EngineOptions(energy=False) if rk_rtol is None else
-            EngineOptions(energy=False, rk_rtol=float(rk_rtol))).pack()
+    opts = EngineOptions(energy=False, rk_rtol=float(map_rk_rtol() if rk_rtol is None else rk_rtol)).pack()
     if protocol == "rest":
         st, per, _ = run_points(P.reshape(-1, E.N_PARAMS), opts, np.zeros((P.shape[0] * P.shape[1], 4)),
                                 int(transient_periods), int(periods), progress=progress,
