@@ -13,7 +13,8 @@ import pytest
 
 from capsule_cli.dynamics import Drive, simulate
 from capsule_cli.dynamics import engine as E
-from capsule_cli.dynamics.model import PATCH_ZETA_MIN, EngineOptions, effective_friction, friction_preset, patch_damping_Ns_m
+from capsule_cli.dynamics.model import (PATCH_ZETA_MIN, EngineOptions, effective_friction, friction_preset,
+                                        patch_damping_Ns_m)
 from capsule_cli.dynamics.reference import reference_run
 from capsule_cli.dynamics.system import Protocol, build_system, progression, trajectory
 from capsule_cli.effects.registry import effects, get_effect

@@ -25,8 +25,8 @@ Choices made here where physics.md leaves them open (tested in tests/test_dynami
   under the capsule's ~34 mN weight, ~0.2 mm/N; the tangential compliance is taken of that order),
   start c_s = 0. Fit bounds of 1/k_s: [1e-3, 100] mm/N. The floor is a physical one: a wall stiffer
   than 1e6 N/m tangentially is stiffer than any soft substrate of the seeds (a Mindlin contact of
-  radius a on a half-space of shear modulus G has k_t = 8 G a / (2 - nu), Johnson, Contact Mechanics,
-  eq 7.36: even G = 1 MPa silicone under a 5 mm contact gives ~3e4 N/m, 0.04 mm/N; soft tissue
+  radius a on a half-space of shear modulus G has k_t = 8 G a / (2 - nu), Johnson, Contact Mechanics (1985),
+  section 7.2 (Mindlin): even G = 1 MPa silicone under a 5 mm contact gives ~3e4 N/m, 0.04 mm/N; soft tissue
   ~1e3x softer). It is also a numerical necessity: with c_s = 0 the shell rings on the presliding
   spring at sqrt(k_s / M_c), so the limit 1/k_s -> 0 is singular (the velocity converges to the
   rigid wall's only like sqrt(1/k_s)) and each period's cost grows like sqrt(k_s): a fit sliding
