@@ -3,11 +3,19 @@ once added, fits to the noise level (issue 12 item 7), in CI time.
 
 Ten conditions (f 30-38 Hz x P_d 0.08, 0.12 N, 2 replicates, from rest, 40 + 16 periods), 0.5 mm/s noise, the
 quick effort (rk_rtol 1e-8: <= 1e-4 mm/s on the velocities, tests/test_dynamics_loop_fast.py), every built-in
-candidate (the default pool: the Bonferroni factor is 5). The effect sizes are a few times the noise in the
-velocities. On the six-condition design of test_dynamics_loop_fast.py a hidden speed law (a = 6 mN, n = 0.5)
-makes four of the six conditions multi-impact or irregular and the verdict rightly names the speed law, drag and
-tilt as not separable; these ten conditions separate them. Measured (loaded 2-core machine): 11-24 s of CPU per
-case, the speed-law candidate (adaptive path) the dearest.
+candidate (the default pool: the Bonferroni factor is 5). On the six-condition design of
+test_dynamics_loop_fast.py a hidden speed law (a = 6 mN, n = 0.5) makes four of the six conditions
+multi-impact or irregular, and the verdict names the speed law, drag and tilt as not separable; these ten
+conditions separate them.
+
+Measured over seeds 1-3 (this design and budget): the hidden effect is named in 15 of 15 diagnoses. The
+held-out error of the named model is within 1.2 x the noise SD in 5 of 5 (seed 1, asserted here), 4 of 5
+(seed 2: secondary constraint 0.80 mm/s, the same with the true model refitted and 10 folds) and 1 of 5
+(seed 3: speed law 0.87, compliance 1.04; the tilt and the secondary constraint stopped in wrong minima,
+kappa at its bound and a 1 mm gap, 32 and 7.6 mm/s). On 14 rows a perfect model alone exceeds 1.2 x SD with
+probability ~0.12 (chi-square); the wrong minima are the calibration's, on designs this small with effects
+this large (the model as is misses by 2-50 mm/s). The 40-condition design is the benchmark's
+(benchmarks/bench_dynamics_loop.py). CPU: 16-30 s per case on a loaded 2-core machine.
 """
 from __future__ import annotations
 
