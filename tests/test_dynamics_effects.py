@@ -13,7 +13,8 @@ import pytest
 
 from capsule_cli.dynamics import Drive, simulate
 from capsule_cli.dynamics import engine as E
-from capsule_cli.dynamics.model import EngineOptions, effective_friction, friction_preset
+from capsule_cli.dynamics.model import (PATCH_ZETA_MIN, EngineOptions, effective_friction, friction_preset,
+                                        patch_damping_Ns_m)
 from capsule_cli.dynamics.reference import reference_run
 from capsule_cli.dynamics.system import Protocol, build_system, progression, trajectory
 from capsule_cli.effects.registry import effects, get_effect
@@ -299,6 +300,32 @@ def test_stiff_substrate_approaches_the_rigid_wall():
         errs.append(abs(v - vb) / abs(vb))
     assert errs[1] < 0.5 * errs[0] and errs[1] < 0.03, errs
     assert errs[0] / errs[1] == pytest.approx(math.sqrt(10.0), rel=0.25)
+
+
+def _patch_velocity(compliance_mm_N, zeta):
+    """Average velocity [mm/s] at 20 Hz, 0.15 N, P_f = 0.05 N with the presliding damper at damping ratio zeta."""
+    base = build_system("one_sided", {"Pf_N": 0.05})
+    ks = 1.0 / (compliance_mm_N * 1e-3)
+    cs = 2.0 * zeta * math.sqrt(ks * base.model.mass_capsule_kg)
+    s = build_system("one_sided", {"compliance_mm_N": compliance_mm_N, "substrate_damping_Ns_m": cs, "Pf_N": 0.05},
+                     ["substrate_compliance"])
+    r = simulate(s.model, Drive(0.15, 20.0), s.friction(), periods=4, transient_periods=2)
+    return r.average_velocity_mm_s, patch_damping_Ns_m(s.model), cs
+
+
+def test_a_nearly_undamped_patch_takes_the_exact_cs_to_zero_limit():
+    """Below PATCH_ZETA_MIN the engine integrates c_s = 0 (the patch relaxes in 1e-6 of a ringing period);
+    just above it, with c_s integrated, the velocity is that of c_s = 0 to 1e-3 mm/s, so the switch
+    is invisible. Before the limit, zeta ~ 1e-8 (patch rate k_s / c_s ~ 1e12 / s) stalled the engine
+    for ~50 s and failed."""
+    v0, used0, _ = _patch_velocity(1e-3, 0.0)
+    v_lo, used_lo, cs_lo = _patch_velocity(1e-3, 1e-8)
+    v_hi, used_hi, cs_hi = _patch_velocity(1e-3, 2.0 * PATCH_ZETA_MIN)
+    assert cs_lo > 0 and used_lo == 0.0 and used0 == 0.0
+    assert used_hi == pytest.approx(cs_hi, rel=1e-12)
+    assert v_lo == v0
+    assert abs(v_hi - v0) < 1e-3, (v_hi, v0)
+    assert abs(v0) > 1.0  # the condition moves the capsule: the comparison has something to show
 
 
 def test_substrate_compliance_with_a_damped_patch_refuses_a_speed_law():

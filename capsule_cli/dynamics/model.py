@@ -315,6 +315,27 @@ def effective_friction(model: CapsuleModel, friction: Friction) -> Friction:
                     b_mN=friction.level_N * 1e3, v_min_mm_s=float(vmin), literal=friction.literal).validate()
 
 
+#: damping ratio zeta_s = c_s / (2 sqrt(k_s M_c)) of the presliding element below which the engine takes
+#: the exact c_s -> 0 limit: the sliding patch then relaxes in c_s / k_s = 2 zeta_s / omega_s, under 1e-6 of
+#: the shell's ringing period on the presliding spring. Measured (40-condition progression design,
+#: tests/test_dynamics_effects.py): average velocities of every periodic response unchanged to 1e-3 mm/s
+#: between zeta_s ~ 1e-6 and c_s = 0; below ~1e-8 the patch mode (rate k_s / c_s > 1e12 / s) is too stiff
+#: for the eigenvector-conditioned exact path and its adaptive fallback stalls. A numerical limit, not a
+#: physical parameter.
+PATCH_ZETA_MIN = 1e-6
+
+
+def patch_damping_Ns_m(model: CapsuleModel) -> float:
+    """Return the presliding damper c_s [N s/m] the engine integrates (``substrate_compliance``,
+    physics.md section 3): the model's c_s, or 0 (the exact c_s -> 0 limit) when its damping ratio
+    c_s / (2 sqrt(k_s M_c)) is below :data:`PATCH_ZETA_MIN`."""
+    cs = model.substrate_damping_Ns_m
+    if cs <= 0.0 or model.compliance_m_N <= 0.0:
+        return 0.0
+    zeta = cs / (2.0 * math.sqrt(model.mass_capsule_kg / model.compliance_m_N))
+    return cs if zeta >= PATCH_ZETA_MIN else 0.0
+
+
 def pack_params(model: CapsuleModel, drive: Drive, friction: Friction) -> np.ndarray:
     """Return the engine's parameter vector (SI) for a model, drive and friction.
 
@@ -358,7 +379,7 @@ def pack_params(model: CapsuleModel, drive: Drive, friction: Friction) -> np.nda
             raise InputError("substrate_compliance with c_s > 0 takes a Coulomb friction level: a speed law "
                              "would be implicit in the patch speed (use substrate_damping_Ns_m = 0)")
         p[E.I_KS] = 1.0 / model.compliance_m_N
-        p[E.I_CS] = model.substrate_damping_Ns_m
+        p[E.I_CS] = patch_damping_Ns_m(model)
     # slips faster than I_VFAST go on the adaptive path: above V_min for a held speed law; every
     # slip under the literal law (no held level); never for Coulomb. Drag, tilt and substrate
     # compliance keep the modes linear: the engine solves them exactly (general linear modes).

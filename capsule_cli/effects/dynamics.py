@@ -23,7 +23,17 @@ Choices made here where physics.md leaves them open (tested in tests/test_dynami
   levels are scaled alike, and the stick test uses the scaled breakaway at the current x_r.
 * ``substrate_compliance``: start 1/k_s = 0.2 mm/N (seed 002 reports ~6.8 um of normal deformation
   under the capsule's ~34 mN weight, ~0.2 mm/N; the tangential compliance is taken of that order),
-  start c_s = 0. The limit c_s -> 0 is taken exactly: with c_s = 0 the sliding patch keeps
+  start c_s = 0. Fit bounds of 1/k_s: [1e-3, 100] mm/N. The floor is a physical one: a wall stiffer
+  than 1e6 N/m tangentially is stiffer than any soft substrate of the seeds (a Mindlin contact of
+  radius a on a half-space of shear modulus G has k_t = 8 G a / (2 - nu), Johnson, Contact Mechanics (1985),
+  section 7.2 (Mindlin): even G = 1 MPa silicone under a 5 mm contact gives ~3e4 N/m, 0.04 mm/N; soft tissue
+  ~1e3x softer). It is also a numerical necessity: with c_s = 0 the shell rings on the presliding
+  spring at sqrt(k_s / M_c), so the limit 1/k_s -> 0 is singular (the velocity converges to the
+  rigid wall's only like sqrt(1/k_s)) and each period's cost grows like sqrt(k_s): a fit sliding
+  towards 0 paid seconds per evaluation. The rigid wall itself (1/k_s = 0, off) is the model
+  without the effect, compared with it by the verdict. Below a damping ratio
+  c_s / (2 sqrt(k_s M_c)) of 1e-6 the engine takes c_s = 0 (``dynamics.model.PATCH_ZETA_MIN``).
+  The limit c_s -> 0 is taken exactly: with c_s = 0 the sliding patch keeps
   k_s d = sgn P_k and, when the breakaway exceeds the kinetic level, jumps there at breakaway with the
   released spring energy dissipated (counted). c_s > 0 with a speed law is refused (the law would be
   implicit in the patch speed). The drag acts on the shell velocity whenever it moves. Stick
@@ -39,6 +49,9 @@ from ..errors import InputError
 from .registry import BaseModel, Effect, Param, register_base, register_effect
 
 KINDS = ("progression", "trajectory")
+
+#: fit bounds of substrate_compliance's 1/k_s [mm/N] (module docstring: the floor's physics and cost)
+COMPLIANCE_BOUNDS_MM_N = (1e-3, 100.0)
 
 ADDITIVE = ("Effects of this kind change the equations of motion and combine by adding their terms "
             "(order in the model file irrelevant).")
@@ -121,11 +134,14 @@ for _kind in KINDS:
         name="substrate_compliance", kind=_kind,
         description="The wall deforms tangentially before the capsule slides: spring k_s and damper c_s between "
                     "the shell and a massless contact patch that carries the set-valued friction (elastic "
-                    "presliding in series with Coulomb friction). c_s = 0 is the exact c_s -> 0 limit. "
+                    "presliding in series with Coulomb friction). c_s = 0 is the exact c_s -> 0 limit, "
+                    "taken below a damping ratio c_s / (2 sqrt(k_s M_c)) of 1e-6. "
                     "Off: compliance 1/k_s = 0 (rigid wall). " + ADDITIVE,
         source="seed 002 sections 4-5 (intestinal deformation, ~6.8 um under the capsule's weight); "
                "physics.md section 3",
-        params=(Param("compliance_mm_N", 0.2, (0.0, 100.0), off=0.0, description="tangential compliance 1/k_s"),
+        params=(Param("compliance_mm_N", 0.2, COMPLIANCE_BOUNDS_MM_N, off=0.0,
+                      description="tangential compliance 1/k_s; fit floor 1e-3 mm/N = 1e6 N/m, stiffer "
+                                  "than any soft substrate (the rigid wall is the effect off)"),
                 Param("substrate_damping_Ns_m", 0.0, (0.0, 10.0), off=0.0,
                       description="damping c_s of the presliding element")),
         covariates=(), apply=_not_a_transform))

@@ -21,8 +21,8 @@ class LoopStudy(Strict):
     noise_sd_relaxation_kPa: float = Field(default=0.05, ge=0, description="noise SD of the relaxation demo [kPa]")
     dynamics_kinds: list[Literal["progression"]] = Field(
         default_factory=list,
-        description="dynamics kinds with a hidden-effect demo (progression: speed_dependent_friction hidden); off "
-                    "by default until the dynamics loop runs within the study's time budget on the opened engine")
+        description="dynamics kinds with a hidden-effect demo (progression; the hidden effect: dynamics_demo); "
+                    "none when the list is empty (configs/study.yaml turns the progression demo on)")
     dynamics_design: str = Field(default="progression_grid.csv",
                                  description="design of the dynamics demo (configs/designs/)")
     dynamics_replicates: int = Field(default=2, ge=1, description="replicates per condition of the dynamics demo [-]")
