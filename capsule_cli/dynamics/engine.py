@@ -57,7 +57,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, objmode, prange
+from llvmlite import ir
+from numba import njit, objmode, prange, types
+from numba.extending import intrinsic
 
 # ---------------------------------------------------------------------------
 # parameter vector (SI), built by capsule_cli.dynamics.model.pack_params
@@ -69,7 +71,12 @@ I_XS, I_VS, I_FS = 22, 23, 24
 I_CV, I_KAP, I_VFAST = 25, 26, 27
 # substrate compliance: k_s = 1/compliance (0: rigid wall, off), c_s
 I_KS, I_CS = 28, 29
-N_PARAMS = 30
+# user plugin forces (capsule_cli.dynamics.plugin_force, issue 9 item 4): I_PLUG 1 = active (every mode then
+# goes through the adaptive segment); I_PLUG_FN the address of the compiled force (a C function pointer,
+# exact in a float64: addresses are below 2**53); I_PLUG_NP its number of parameters, stored from I_PLUG_P0
+I_PLUG, I_PLUG_FN, I_PLUG_NP, I_PLUG_P0 = 30, 31, 32, 33
+MAX_PLUG_PARAMS = 16
+N_PARAMS = I_PLUG_P0 + MAX_PLUG_PARAMS
 
 # options vector
 O_NPER, O_ENERGY, O_RTOL, O_ZENO, O_MAXSTEPS, O_EXACT = 0, 1, 2, 3, 4, 5
@@ -94,6 +101,7 @@ EVENT_KIND_NAMES = {1: "front_contact_on", 2: "front_contact_off", 3: "back_cont
                     8: "drive_on", 9: "drive_off"}
 
 STATUS_OK, STATUS_ZENO, STATUS_ILLPOSED, STATUS_RKFAIL, STATUS_EVCAP = 0, 1, 2, 3, 4
+STATUS_PLUGIN = 5  # a user plugin force raised or returned a non-finite value
 
 # sample columns
 S_T, S_XM, S_XC, S_VM, S_VC, S_XR, S_CONTACT, S_STICK, S_FI = range(9)
@@ -103,6 +111,8 @@ P_DISP, P_NFRONT, P_NBACK, P_MAXF, P_XR0, P_VR0, P_STICK, P_XC0, P_TMAXF, P_NSTI
 N_PERIOD_COLS = 12
 # energy entries
 E_DRIVE, E_DAMP, E_CONTACT, E_FRIC, E_START, E_END = range(6)
+E_PLUGIN = 6  # work done by the user plugin forces [J]
+N_ENERGY = 7
 
 # basis of a linear mode (:func:`basis`): modal slot 1, drive cos/sin, 1, tau, tau^2, modal slot 2
 NB = 9
@@ -204,11 +214,13 @@ def stored_energy(p, xr, vr, Vc):
 
 
 @njit(cache=True)
-def decide_shell(p, contact, xr, vr, fe):
+def decide_shell(p, contact, xr, vr, fe, Fm, Fc, dFc):
     """Return the shell state at V_c = 0 by the set-valued law (eqs 21-23).
 
-    Sticks while |F_i| < P_break; slips in the direction of F_i when |F_i| > P_break;
-    at the threshold, sticks when F_i is moving back inside. Returns -1 when the
+    Sticks while |F_i + F_c| < P_break; slips in the direction of F_i + F_c when it is above;
+    at the threshold, sticks when that force is moving back inside. F_m, F_c [N] are the user
+    plugin forces on the magnet and the shell at this instant and dFc [N/s] the rate of F_c along
+    the stuck motion (all 0 without a plugin: :func:`plugin_terms`). Returns -1 when the
     shell cannot stick and cannot slip either (breakaway below the kinetic level at
     0+: the literal eq 22, a Zeno stick-slip loop).
     """
@@ -219,15 +231,16 @@ def decide_shell(p, contact, xr, vr, fe):
     if tilt:
         Pb *= tilt_factor(p, xr)
     K, C, F0 = contact_terms(p, contact)
-    F = K * xr + C * vr + F0
+    Fi = K * xr + C * vr + F0
+    F = Fi + Fc
     tol = 1e-12 * p[I_FS]
     aF = abs(F)
     if aF < Pb - tol:
         return STICK
     sgn = 1.0 if F > 0.0 else -1.0
     if aF <= Pb + tol:
-        ar = (fe - F) / p[I_MM]
-        Fdot = K * vr + C * ar
+        ar = (fe - Fi + Fm) / p[I_MM]
+        Fdot = K * vr + C * ar + dFc
         if tilt:
             # the threshold moves with x_r: stick when |F_i| - P_b(x_r) is not increasing
             dPb = p[I_PB] * p[I_KAP] / p[I_G1] * vr if Pb > 0.0 else 0.0
@@ -1094,7 +1107,7 @@ E1, E3, E4, E5, E6, E7 = (71.0 / 57600.0, -71.0 / 16695.0, 71.0 / 1920.0, -17253
                           22.0 / 525.0, -1.0 / 40.0)
 D1, D3, D4 = -12715105075.0 / 11282082432.0, 87487479700.0 / 32700410799.0, -10690763975.0 / 1880347072.0
 D5, D6, D7 = 701980252875.0 / 199316789632.0, -1453857185.0 / 822651844.0, 69997945.0 / 29380423.0
-NY = 9
+NY = 10  # x_r, v_r, V_c, X_c, W_drive, D_damp, D_contact, D_friction, d, W_plugin
 
 
 @njit(cache=True)
@@ -1176,9 +1189,10 @@ def patch_force(p, d, Vc):
 
 
 @njit(cache=True)
-def decide_patch(p, contact, xr, vr, Vc, d, fe):
+def decide_patch(p, contact, xr, vr, Vc, d, fe, Fc):
     """Return the patch state (PATCH_STICK, FAST_POS, FAST_NEG; -1 ill-posed) by the set-valued
-    law applied to the patch force (substrate_compliance), as :func:`decide_shell` for the shell."""
+    law applied to the patch force (substrate_compliance), as :func:`decide_shell` for the shell
+    (Fc [N]: the user plugin force on the shell, 0 without a plugin)."""
     Pb = p[I_PB]
     if Pb == np.inf:
         return PATCH_STICK
@@ -1192,7 +1206,7 @@ def decide_patch(p, contact, xr, vr, Vc, d, fe):
     if aF <= Pb + tol:
         K, C, F0 = contact_terms(p, contact)
         Fi = K * xr + C * vr + F0
-        ac = (Fi - F - p[I_CV] * Vc) / p[I_MC]
+        ac = (Fi - F - p[I_CV] * Vc + Fc) / p[I_MC]
         Fdot = p[I_KS] * Vc + p[I_CS] * ac
         dPb = p[I_PB] * p[I_KAP] / p[I_G1] * vr if Pb > 0.0 else 0.0
         if sgn * Fdot - dPb <= 0.0:
@@ -1239,6 +1253,124 @@ def rk_event_value(p, contact, sgn, vlo, vhi, j, y):
     if contact == 1:
         return y[0] - G1 if j == 0 else 1.0
     return -G2 - y[0] if j == 0 else 1.0
+
+
+# ---------------------------------------------------------------------------
+# user plugin forces (issue 9 item 4; capsule_cli.dynamics.plugin_force compiles them)
+#
+# The engine is compiled once and cached; a plugin is a C-callable function (numba ``cfunc``) of the
+# fixed signature ``int64(t, x_m, v_m, x_c, v_c, double *p, int64 n_p, double *out)`` whose address
+# travels in the parameter row (I_PLUG_FN). It writes out[0] = force on the magnet, out[1] = force on
+# the shell [N] and returns 0, or 1 when the user's function raised.
+
+
+@intrinsic
+def _call_force_ptr(typingctx, addr, t, xm, vm, xc, vc, pptr, n, outptr):
+    """Call the plugin force at address ``addr`` (int64) with parameter and output pointers (int64)."""
+    sig = types.int64(types.int64, types.float64, types.float64, types.float64, types.float64, types.float64,
+                      types.int64, types.int64, types.int64)
+
+    def codegen(context, builder, signature, args):
+        d = ir.DoubleType()
+        i64 = ir.IntType(64)
+        fnty = ir.FunctionType(i64, [d, d, d, d, d, d.as_pointer(), i64, d.as_pointer()])
+        fn = builder.inttoptr(args[0], fnty.as_pointer())
+        pp = builder.inttoptr(args[6], d.as_pointer())
+        op = builder.inttoptr(args[8], d.as_pointer())
+        return builder.call(fn, [args[1], args[2], args[3], args[4], args[5], pp, args[7], op])
+
+    return sig, codegen
+
+
+@njit(cache=True)
+def plugin_force(p, t, xr, vr, Xc, Vc, pq, fo):
+    """Evaluate the user plugin force at time t [s] since the run's start and state (x_r, v_r, X_c, V_c)
+    [m, m/s]: fo[0] = force on the magnet, fo[1] = force on the shell [N]; pq: its parameters (SI).
+
+    A plugin that raised or returned a non-finite force sets the latch fo[2] = 1 (the run stops with
+    STATUS_PLUGIN) and counts as zero force."""
+    st = _call_force_ptr(np.int64(p[I_PLUG_FN]), t, Xc + xr, Vc + vr, Xc, Vc, pq.ctypes.data, pq.shape[0],
+                         fo.ctypes.data)
+    if st != 0 or not (math.isfinite(fo[0]) and math.isfinite(fo[1])):
+        fo[2] = 1.0
+        fo[0] = 0.0
+        fo[1] = 0.0
+
+
+@njit(cache=True)
+def plugin_terms(p, t, contact, xr, vr, Xc, fe, pq, fo):
+    """Return (F_m, F_c, dF_c/dt) [N, N, N/s] of the plugin force on a shell at rest (V_c = 0) for the
+    stick test of :func:`decide_shell`; the rate by a central difference along the stuck motion
+    (X_c fixed, x_r'' from the magnet's equation). All zero without a plugin."""
+    if p[I_PLUG] < 0.5:
+        return 0.0, 0.0, 0.0
+    plugin_force(p, t, xr, vr, Xc, 0.0, pq, fo)
+    Fm = fo[0]
+    Fc = fo[1]
+    K, C, F0 = contact_terms(p, contact)
+    ar = (fe - (K * xr + C * vr + F0) + Fm) / p[I_MM]
+    dt = 1e-7 / p[I_F]
+    plugin_force(p, t + dt, xr + dt * vr, vr + dt * ar, Xc, 0.0, pq, fo)
+    Fp = fo[1]
+    plugin_force(p, t - dt, xr - dt * vr, vr - dt * ar, Xc, 0.0, pq, fo)
+    Fn = fo[1]
+    return Fm, Fc, (Fp - Fn) / (2.0 * dt)
+
+
+@njit(cache=True)
+def rk_rhs_plugin(p, contact, sgn, held, s, t, fe_level, y, dy, pq, fo):
+    """:func:`rk_rhs` plus the user plugin force: F_m on the magnet, F_c on the shell, its power
+    F_m V_m + F_c V_c integrated in y[9] (the energy balance's plugin work).
+
+    held: the shell is stuck on a rigid wall (V_c = 0 while |F_i + F_c| stays inside the friction
+    cone; the breakaway is an event of :func:`seg_event_value`): only the magnet moves."""
+    if held:
+        K, C, F0 = contact_terms(p, contact)
+        fe = drive_force(p, s, fe_level)
+        Fi = K * y[0] + C * y[1] + F0
+        plugin_force(p, t, y[0], y[1], y[3], 0.0, pq, fo)
+        dy[0] = y[1]
+        dy[1] = (fe - Fi + fo[0]) / p[I_MM]
+        dy[2] = 0.0
+        dy[3] = 0.0
+        dy[4] = fe * y[1]
+        dy[5] = p[I_C] * y[1] * y[1]
+        dy[6] = (C - p[I_C]) * y[1] * y[1]
+        dy[7] = 0.0
+        dy[8] = 0.0
+        dy[9] = fo[0] * y[1]
+        return
+    rk_rhs(p, contact, sgn, s, fe_level, y, dy)
+    plugin_force(p, t, y[0], y[1], y[3], y[2], pq, fo)
+    dy[1] += fo[0] / p[I_MM] - fo[1] / p[I_MC]
+    dy[2] += fo[1] / p[I_MC]
+    dy[9] = fo[0] * (y[2] + y[1]) + fo[1] * y[2]
+
+
+@njit(cache=True)
+def seg_rhs(p, contact, sgn, held, s, t0, fe_level, y, dy, pq, fo):
+    """Right-hand side of the adaptive segment at time s within the period starting at t0 [s]:
+    :func:`rk_rhs`, or :func:`rk_rhs_plugin` when the parameter row carries a plugin force."""
+    if p[I_PLUG] > 0.5:
+        rk_rhs_plugin(p, contact, sgn, held, s, t0 + s, fe_level, y, dy, pq, fo)
+    else:
+        rk_rhs(p, contact, sgn, s, fe_level, y, dy)
+
+
+@njit(cache=True)
+def seg_event_value(p, contact, sgn, held, vlo, vhi, j, y, t, pq, fo):
+    """Inside-positive event functions of an adaptive segment at time t [s] since the run's start:
+    :func:`rk_event_value`, and for a shell held on a rigid wall with a plugin force (held) the stick
+    test: j = 2 P_b - (F_i + F_c), j = 3 P_b + (F_i + F_c) (tilt-scaled P_b; 1 for a fixed shell)."""
+    if held and j >= 2:
+        if p[I_PB] == np.inf:
+            return 1.0
+        K, C, F0 = contact_terms(p, contact)
+        plugin_force(p, t, y[0], y[1], y[3], 0.0, pq, fo)
+        F = K * y[0] + C * y[1] + F0 + fo[1]
+        Pb = p[I_PB] * tilt_factor(p, y[0])
+        return Pb - F if j == 2 else Pb + F
+    return rk_event_value(p, contact, sgn, vlo, vhi, j, y)
 
 
 # ---------------------------------------------------------------------------
@@ -1416,7 +1548,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     rec_events = ev_cap != 0
     events = np.zeros((ev_cap if ev_cap > 0 else 64, 2))
     periods = np.zeros((max(n_record, 0), N_PERIOD_COLS))
-    energy = np.zeros(6)
+    energy = np.zeros(N_ENERGY)
     final = np.zeros(6)
 
     coef = np.zeros((N_ROWS, NB))
@@ -1470,6 +1602,10 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     k7 = np.zeros(NY)
     rc = np.zeros((5, NY))
     yd = np.zeros(NY)
+    # user plugin force: its parameters (contiguous) and its output [F_m, F_c, failure latch]
+    plug = p[I_PLUG] > 0.5
+    pq = p[I_PLUG_P0:I_PLUG_P0 + int(p[I_PLUG_NP])].copy() if plug else np.zeros(0)
+    fo = np.zeros(3)
 
     xr = state0[0]
     vr = state0[1]
@@ -1481,11 +1617,20 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     compliant = p[I_KS] > 0.0
     dsub = 0.0  # presliding spring extension X_c - X_p (substrate compliance), relaxed at the start
     if compliant:
-        shell = decide_patch(p, contact, xr, vr, Vc, dsub, fe0)
+        Fc0 = 0.0
+        if plug:
+            plugin_force(p, 0.0, xr, vr, Xc, Vc, pq, fo)
+            Fc0 = fo[1]
+        shell = decide_patch(p, contact, xr, vr, Vc, dsub, fe0, Fc0)
+        if fo[2] != 0.0:
+            return STATUS_PLUGIN, 0.0, samples, 0, events, 0, periods, energy, final
         if shell < 0:
             return STATUS_ILLPOSED, 0.0, samples, 0, events, 0, periods, energy, final
     elif Vc == 0.0:
-        shell = decide_shell(p, contact, xr, vr, fe0)
+        Fm0, Fc0, dFc0 = plugin_terms(p, 0.0, contact, xr, vr, Xc, fe0, pq, fo)
+        shell = decide_shell(p, contact, xr, vr, fe0, Fm0, Fc0, dFc0)
+        if fo[2] != 0.0:
+            return STATUS_PLUGIN, 0.0, samples, 0, events, 0, periods, energy, final
         if shell < 0:
             return STATUS_ILLPOSED, 0.0, samples, 0, events, 0, periods, energy, final
     else:
@@ -1546,11 +1691,12 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
         # which path: the base closed form (one modal slot), a general linear mode (effects: drag,
         # tilt, substrate compliance; eigen-decomposition), or the adaptive segment (speed law above
         # V_min, literal law, or a general mode whose eigenvectors are nearly defective)
-        lin_base = shell == STICK or ((shell == SLIP_POS or shell == SLIP_NEG) and not eff_slip)
+        # (a user plugin force makes every mode nonlinear: all go through the adaptive segment)
+        lin_base = not plug and (shell == STICK or ((shell == SLIP_POS or shell == SLIP_NEG) and not eff_slip))
         lin_gen = False
         gmode = GM_SLIP
         sgm = 0.0
-        if not lin_base and exact_general:
+        if not lin_base and exact_general and not plug:
             if shell == SLIP_POS or shell == SLIP_NEG:
                 gmode = GM_SLIP
                 sgm = 1.0 if shell == SLIP_POS else -1.0
@@ -1851,6 +1997,9 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
         else:
             # ---------------- adaptive segment: speed-dependent law above V_min (DOPRI5, dense output)
             sg = 1.0 if (shell == FAST_POS or shell == SLIP_POS) else -1.0
+            # a shell stuck on a rigid wall comes here only with a plugin force: it is held (V_c = 0)
+            held = shell == STICK
+            t0 = period * T
             # a slip (not fast) mode here is a general linear mode with nearly defective eigenvectors:
             # its events are the slip's end (V_c = 0) and V_min
             rk_slow = shell == SLIP_POS or shell == SLIP_NEG
@@ -1876,7 +2025,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             y[8] = dsub
             tau = 0.0
             hh = hmax * 0.1
-            rk_rhs(p, contact, sg, s, fe_level, y, k1)
+            seg_rhs(p, contact, sg, held, s, t0, fe_level, y, k1, pq, fo)
             atol_x = rtol * p[I_XS]
             atol_v = rtol * p[I_VS]
             nsteps = 0
@@ -1895,22 +2044,26 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                 sa = s + tau
                 for i in range(NY):
                     yt[i] = y[i] + hh * A21 * k1[i]
-                rk_rhs(p, contact, sg, sa + C2 * hh, fe_level, yt, k2)
+                seg_rhs(p, contact, sg, held, sa + C2 * hh, t0, fe_level, yt, k2, pq, fo)
                 for i in range(NY):
                     yt[i] = y[i] + hh * (A31 * k1[i] + A32 * k2[i])
-                rk_rhs(p, contact, sg, sa + C3 * hh, fe_level, yt, k3)
+                seg_rhs(p, contact, sg, held, sa + C3 * hh, t0, fe_level, yt, k3, pq, fo)
                 for i in range(NY):
                     yt[i] = y[i] + hh * (A41 * k1[i] + A42 * k2[i] + A43 * k3[i])
-                rk_rhs(p, contact, sg, sa + C4 * hh, fe_level, yt, k4)
+                seg_rhs(p, contact, sg, held, sa + C4 * hh, t0, fe_level, yt, k4, pq, fo)
                 for i in range(NY):
                     yt[i] = y[i] + hh * (A51 * k1[i] + A52 * k2[i] + A53 * k3[i] + A54 * k4[i])
-                rk_rhs(p, contact, sg, sa + C5 * hh, fe_level, yt, k5)
+                seg_rhs(p, contact, sg, held, sa + C5 * hh, t0, fe_level, yt, k5, pq, fo)
                 for i in range(NY):
                     yt[i] = y[i] + hh * (A61 * k1[i] + A62 * k2[i] + A63 * k3[i] + A64 * k4[i] + A65 * k5[i])
-                rk_rhs(p, contact, sg, sa + hh, fe_level, yt, k6)
+                seg_rhs(p, contact, sg, held, sa + hh, t0, fe_level, yt, k6, pq, fo)
                 for i in range(NY):
                     y1[i] = y[i] + hh * (B1 * k1[i] + B3 * k3[i] + B4 * k4[i] + B5 * k5[i] + B6 * k6[i])
-                rk_rhs(p, contact, sg, sa + hh, fe_level, y1, k7)
+                seg_rhs(p, contact, sg, held, sa + hh, t0, fe_level, y1, k7, pq, fo)
+                if fo[2] != 0.0:
+                    status = STATUS_PLUGIN
+                    status_t = t0 + sa
+                    break
                 err = 0.0
                 for i in range(4):
                     ei = hh * (E1 * k1[i] + E3 * k3[i] + E4 * k4[i] + E5 * k5[i] + E6 * k6[i] + E7 * k7[i])
@@ -1932,7 +2085,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                 th_ev = 2.0
                 e_ev = -1
                 for j in range(4):
-                    g1 = rk_event_value(p, contact, sg, vlo, vhi, j, y1)
+                    g1 = seg_event_value(p, contact, sg, held, vlo, vhi, j, y1, t0 + sa + hh, pq, fo)
                     lo = 0.0
                     hi = -1.0
                     if g1 < 0.0:
@@ -1964,7 +2117,8 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                         for _ in range(80):
                             mth = 0.5 * (a_ + b_)
                             dense_eval(rc, mth, yd)
-                            if rk_event_value(p, contact, sg, vlo, vhi, j, yd) >= 0.0:
+                            if seg_event_value(p, contact, sg, held, vlo, vhi, j, yd, t0 + sa + mth * hh, pq,
+                                               fo) >= 0.0:
                                 a_ = mth
                             else:
                                 b_ = mth
@@ -2023,14 +2177,16 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                         row[S_VC] = yd[2]
                         row[S_XR] = yd[0]
                         row[S_CONTACT] = contact
-                        row[S_STICK] = 1.0 if shell == PATCH_STICK else 0.0
+                        row[S_STICK] = 1.0 if seg_stick else 0.0
                         row[S_FI] = K * yd[0] + Cd * yd[1] + F0
                         j_sample += 1
                 if e_ev >= 0:
                     tau += th_stop * hh
                     for i in range(NY):
                         y[i] = y1[i]
-                    if compliant and e_ev >= 2:
+                    if held and e_ev >= 2:
+                        ev = EV_BREAK_POS if e_ev == 2 else EV_BREAK_NEG
+                    elif compliant and e_ev >= 2:
                         if sg == 0.0:
                             ev = EV_BREAK_POS if e_ev == 2 else EV_BREAK_NEG
                         else:
@@ -2069,6 +2225,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                 energy[E_DAMP] += y[5]
                 energy[E_CONTACT] += y[6]
                 energy[E_FRIC] += y[7]
+                energy[E_PLUGIN] += y[9]
 
         # ---------------- bookkeeping of the segment
         if recording and seg_stick:
@@ -2107,21 +2264,29 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             kind = K_BACK_OFF
         new_shell = shell
         fe_now = drive_force(p, s, fe_level)
+        # the plugin force on a shell at rest, counted in the stick test (zeros without a plugin)
+        pFm, pFc, pdFc = 0.0, 0.0, 0.0
+        if plug and ev != EV_NONE:
+            if compliant:
+                plugin_force(p, t_glob, xr, vr, Xc, Vc, pq, fo)
+                pFc = fo[1]
+            else:
+                pFm, pFc, pdFc = plugin_terms(p, t_glob, contact, xr, vr, Xc, fe_now, pq, fo)
         if compliant:
             if ev == EV_BREAK_POS or ev == EV_BREAK_NEG:
-                new_shell = decide_patch(p, contact, xr, vr, Vc, dsub, fe_now)
+                new_shell = decide_patch(p, contact, xr, vr, Vc, dsub, fe_now, pFc)
             elif ev == EV_SLIP_END:
                 # the patch stops with its force at the kinetic level (<= breakaway): it sticks; a force
                 # that keeps rising past the breakaway is a break event of the stuck patch
                 new_shell = PATCH_STICK
         elif ev == EV_FRONT_ON or ev == EV_BACK_ON or ev == EV_FRONT_OFF or ev == EV_BACK_OFF:
             if shell == STICK:
-                new_shell = decide_shell(p, contact, xr, vr, fe_now)
+                new_shell = decide_shell(p, contact, xr, vr, fe_now, pFm, pFc, pdFc)
         elif ev == EV_BREAK_POS or ev == EV_BREAK_NEG:
-            new_shell = decide_shell(p, contact, xr, vr, fe_now)
+            new_shell = decide_shell(p, contact, xr, vr, fe_now, pFm, pFc, pdFc)
         elif ev == EV_SLIP_END:
             Vc = 0.0
-            new_shell = decide_shell(p, contact, xr, vr, fe_now)
+            new_shell = decide_shell(p, contact, xr, vr, fe_now, pFm, pFc, pdFc)
         elif ev == EV_FAST_ON:
             new_shell = FAST_POS if shell == SLIP_POS else FAST_NEG
         elif ev == EV_FAST_OFF:
@@ -2129,7 +2294,11 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                 new_shell = SLIP_POS if shell == FAST_POS else SLIP_NEG
             else:
                 Vc = 0.0
-                new_shell = decide_shell(p, contact, xr, vr, fe_now)
+                new_shell = decide_shell(p, contact, xr, vr, fe_now, pFm, pFc, pdFc)
+        if fo[2] != 0.0:
+            status = STATUS_PLUGIN
+            status_t = t_glob
+            break
         if new_shell < 0:
             status = STATUS_ILLPOSED
             status_t = t_glob
@@ -2227,12 +2396,12 @@ def run_many(P, opts, states0, n_transient, n_record):
     """Run many independent points in parallel (fixed initial conditions, no samples/events).
 
     P: (n, N_PARAMS); states0: (n, 4). Returns (status (n,), periods (n, n_record, cols),
-    energy (n, 6), final (n, 6)).
+    energy (n, N_ENERGY), final (n, 6)).
     """
     n = P.shape[0]
     status = np.zeros(n, dtype=np.int64)
     periods = np.zeros((n, n_record, N_PERIOD_COLS))
-    energy = np.zeros((n, 6))
+    energy = np.zeros((n, N_ENERGY))
     final = np.zeros((n, 6))
     for i in prange(n):
         st, st_t, sm, ns, ev, nev, per, en, fin = run_core(P[i], opts, states0[i], n_transient, n_record,

@@ -60,6 +60,10 @@ def check_status(status: int, t: float, friction: Friction | None = None, where:
     if status == E.STATUS_ZENO:
         raise DynamicsError(f"{pre}events accumulate at t = {t:.9g} s (Zeno: more than the allowed number "
                             "of zero-length segments in a row); the run was stopped")
+    if status == E.STATUS_PLUGIN:
+        raise DynamicsError(f"{pre}a plugin force raised or returned a non-finite force (NaN or inf) at "
+                            f"t = {t:.9g} s; check its formula there (its effect's parameters, e.g. a distance "
+                            "that reaches zero)")
     if status == E.STATUS_RKFAIL:
         raise EngineFailure(f"{pre}speed-dependent slip integration exceeded its step budget at t = {t:.9g} s")
     if status == E.STATUS_EVCAP:
@@ -137,12 +141,14 @@ def simulate(model: CapsuleModel, drive: Drive, friction: Friction, periods: int
         "time_s": ev[:nev, 0],
         "kind": pd.Categorical(names[ev[:nev, 1].astype(np.int64)], categories=list(names[1:])),
     })
-    work = energy[E.E_DRIVE]
+    # drive work + plugin-force work = dissipation + change in stored energy
+    work = energy[E.E_DRIVE] + energy[E.E_PLUGIN]
     diss = energy[E.E_DAMP] + energy[E.E_CONTACT] + energy[E.E_FRIC]
     dstore = energy[E.E_END] - energy[E.E_START]
-    scale = max(abs(work), abs(diss), abs(dstore), 1e-300)
+    scale = max(abs(energy[E.E_DRIVE]), abs(energy[E.E_PLUGIN]), abs(diss), abs(dstore), 1e-300)
     en = {
-        "drive_work_J": float(work),
+        "drive_work_J": float(energy[E.E_DRIVE]),
+        "plugin_work_J": float(energy[E.E_PLUGIN]),
         "spring_damping_J": float(energy[E.E_DAMP]),
         "contact_damping_J": float(energy[E.E_CONTACT]),
         "friction_J": float(energy[E.E_FRIC]),
