@@ -43,8 +43,10 @@ class RunResult:
         return float(self.periods["displacement_mm"].mean() * self.frequency_Hz)
 
 
-def check_status(status: int, t: float, friction: Friction | None = None, where: str = "") -> None:
-    """Raise a clear error for a non-zero engine status."""
+def check_status(status: int, t: float, friction: Friction | None = None, where: str = "",
+                 plugins: tuple = ()) -> None:
+    """Raise a clear error for a non-zero engine status (plugins: the model's ``plugin_forces``, named in
+    the error of a failing plugin force)."""
     if status == E.STATUS_OK:
         return
     pre = f"{where}: " if where else ""
@@ -61,7 +63,8 @@ def check_status(status: int, t: float, friction: Friction | None = None, where:
         raise DynamicsError(f"{pre}events accumulate at t = {t:.9g} s (Zeno: more than the allowed number "
                             "of zero-length segments in a row); the run was stopped")
     if status == E.STATUS_PLUGIN:
-        raise DynamicsError(f"{pre}a plugin force raised or returned a non-finite force (NaN or inf) at "
+        names = ", ".join(f"'{pf[1]}'" for pf in plugins) or "a plugin force"
+        raise DynamicsError(f"{pre}plugin force {names} raised or returned a non-finite force (NaN or inf) at "
                             f"t = {t:.9g} s; check its formula there (its effect's parameters, e.g. a distance "
                             "that reaches zero)")
     if status == E.STATUS_RKFAIL:
@@ -123,7 +126,7 @@ def simulate(model: CapsuleModel, drive: Drive, friction: Friction, periods: int
         raise InputError(f"{n_samples} trajectory samples requested; lower --sample-rate-Hz or --periods")
     st, st_t, samples, ns, ev, nev, per, energy, final = E.run_core(
         p, opts, s0, int(transient_periods), int(periods), dt, n_samples, -1 if record_events else 0)
-    check_status(int(st), float(st_t), friction, where)
+    check_status(int(st), float(st_t), friction, where, model.plugin_forces)
     sm = samples[:ns]
     traj = pd.DataFrame({
         "time_s": sm[:, E.S_T],

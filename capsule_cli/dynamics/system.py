@@ -281,7 +281,8 @@ def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmo
     if protocol.start == "rest":
         st, per, _, _ = E.run_many(P, opts, np.zeros((n, 4)), ntr, nrec)
         for i in range(n):
-            check_status(int(st[i]), float("nan"), fr, f"condition f = {f[i]:g} Hz, Pd = {Pd[i]:g} N")
+            check_status(int(st[i]), float("nan"), fr, f"condition f = {f[i]:g} Hz, Pd = {Pd[i]:g} N",
+                         system.model.plugin_forces)
             results[i] = per[i]
     else:
         groups: dict[tuple[float, float], list[int]] = {}
@@ -292,7 +293,8 @@ def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmo
             state = np.zeros(4)
             for i in idx:
                 st, st_t, _, _, _, _, per, _, fin = E.run_core(P[i], opts, state, ntr, nrec, 1.0, 0, 0)
-                check_status(int(st), float(st_t), fr, f"condition f = {f[i]:g} Hz, Pd = {Pd[i]:g} N")
+                check_status(int(st), float(st_t), fr, f"condition f = {f[i]:g} Hz, Pd = {Pd[i]:g} N",
+                             system.model.plugin_forces)
                 results[i] = per
                 state = np.array([fin[0], fin[1], 0.0, fin[3]])
     return pd.DataFrame([summarize_periods(results[i], float(f[i])) for i in range(n)])
@@ -314,7 +316,8 @@ def trajectory(system: DynSystem, f_Hz: float, Pd_N: float, time_s, duty=None, w
     n_periods = int(math.floor((ts[-1] if ts.size else 0.0) * d.frequency_Hz)) + 1
     opts = replace(options or EngineOptions(), energy=False).pack()
     st, st_t, sm, ns, *_ = E.run_core_at(system.params_row(d), opts, np.zeros(4), 0, n_periods, ts, 0)
-    check_status(int(st), float(st_t), system.friction(), f"trajectory f = {d.frequency_Hz:g} Hz")
+    check_status(int(st), float(st_t), system.friction(), f"trajectory f = {d.frequency_Hz:g} Hz",
+                 system.model.plugin_forces)
     if ns != ts.size:
         raise RuntimeError(f"trajectory: {ns} of {ts.size} samples written")
     cap = np.empty(t.size)
