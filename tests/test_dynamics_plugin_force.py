@@ -132,6 +132,22 @@ def test_spring_plugin_equals_a_stiffer_helical_spring(plugin, Pf_N, f_Hz):
     assert a.energy["plugin_work_J"] == pytest.approx(-0.5 * 20.0 * (xr1 ** 2 - xr0 ** 2), rel=1e-6, abs=1e-13)
 
 
+@pytest.mark.parametrize("effects, prm, law", [((), {}, "eq22"), (("secondary_constraint",), {}, None),
+                                               (("tilt_friction",), {"kappa": -0.9}, None),
+                                               (("substrate_compliance",), {}, None)])
+def test_spring_plugin_with_other_effects(plugin, effects, prm, law):
+    """The plugin force combines with the speed laws (fast slip), the back constraint, tilt (the held
+    stick test with a tilt-scaled cone) and substrate compliance (the patch modes), to 1e-8 s."""
+    s = build_system("one_sided", {**prm, "k_extra_N_m": 20.0}, [*effects, "extra_spring_t9f"])
+    base = build_system("one_sided", {**prm, "spring_N_m": 82.0}, list(effects))
+    fr = friction_preset(law) if law else s.friction()
+    d = Drive(0.15, 25.0)
+    a = simulate(s.model, d, fr, periods=8, sample_rate_Hz=0)
+    b = simulate(base.model, d, fr, periods=8, sample_rate_Hz=0)
+    _same_events(a, b, 1e-8)
+    assert abs(a.energy["relative_residual"]) < 2e-9, a.energy
+
+
 def test_spring_plugin_trajectory_and_progression_match(plugin):
     s = build_system("one_sided", {"k_extra_N_m": 20.0}, ["extra_spring_t9f"])
     base = build_system("one_sided", {"spring_N_m": 82.0})
