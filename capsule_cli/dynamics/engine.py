@@ -220,7 +220,7 @@ def decide_shell(p, contact, xr, vr, fe, Fm, Fc, dFc):
     Sticks while |F_i + F_c| < P_break; slips in the direction of F_i + F_c when it is above;
     at the threshold, sticks when that force is moving back inside. F_m, F_c [N] are the user
     plugin forces on the magnet and the shell at this instant and dFc [N/s] the rate of F_c along
-    the stuck motion (all 0 without a plugin: :func:`plugin_terms`). Returns -1 when the
+    the stuck motion (all 0 without a plugin: :func:`plugin_stick_terms`). Returns -1 when the
     shell cannot stick and cannot slip either (breakaway below the kinetic level at
     0+: the literal eq 22, a Zeno stick-slip loop).
     """
@@ -1258,116 +1258,124 @@ def rk_event_value(p, contact, sgn, vlo, vhi, j, y):
 # ---------------------------------------------------------------------------
 # user plugin forces (issue 9 item 4; capsule_cli.dynamics.plugin_force compiles them)
 #
-# The engine is compiled once and cached; a plugin is a C-callable function (numba ``cfunc``) of the
-# fixed signature ``int64(t, x_m, v_m, x_c, v_c, double *p, int64 n_p, double *out)`` whose address
-# travels in the parameter row (I_PLUG_FN). It writes out[0] = force on the magnet, out[1] = force on
-# the shell [N] and returns 0, or 1 when the user's function raised.
+# The engine is compiled once and cached; a plugin force comes as a C-callable function (a numba ``cfunc``
+# built by plugin_force.compile_forces) of one fixed signature
+#     double plugin(int64 which, double t, double x_m, double v_m, double x_c, double v_c, double *q)
+# returning the force on the magnet (which = 0) or on the shell (which = 1) [N] at time t [s] since the
+# run's start, NaN when the user's function raised or returned a non-finite force; q: its parameters (SI).
+# Its address travels in the parameter row (I_PLUG_FN) and the engine calls it indirectly, only on the
+# plugin's own branches (seg_rhs, seg_event_value, plugin_stick_terms): the code of the runs without a
+# plugin is unchanged.
 
 
 @intrinsic
-def _call_force_ptr(typingctx, addr, t, xm, vm, xc, vc, pptr, n, outptr):
-    """Call the plugin force at address ``addr`` (int64) with parameter and output pointers (int64)."""
-    sig = types.int64(types.int64, types.float64, types.float64, types.float64, types.float64, types.float64,
-                      types.int64, types.int64, types.int64)
+def _call_plugin_ptr(typingctx, addr, which, t, xm, vm, xc, vc, qptr):
+    """Call the plugin at address ``addr`` (int64) with its parameters at ``qptr`` (int64); a cfunc does
+    not unwind (nounwind)."""
+    sig = types.float64(types.int64, types.int64, types.float64, types.float64, types.float64, types.float64,
+                        types.float64, types.int64)
 
     def codegen(context, builder, signature, args):
         d = ir.DoubleType()
-        i64 = ir.IntType(64)
-        fnty = ir.FunctionType(i64, [d, d, d, d, d, d.as_pointer(), i64, d.as_pointer()])
+        fnty = ir.FunctionType(d, [ir.IntType(64), d, d, d, d, d, d.as_pointer()])
         fn = builder.inttoptr(args[0], fnty.as_pointer())
-        pp = builder.inttoptr(args[6], d.as_pointer())
-        op = builder.inttoptr(args[8], d.as_pointer())
-        return builder.call(fn, [args[1], args[2], args[3], args[4], args[5], pp, args[7], op])
+        q = builder.inttoptr(args[7], d.as_pointer())
+        return builder.call(fn, list(args[1:7]) + [q], attrs=("nounwind",))
+
+    return sig, codegen
+
+
+@intrinsic
+def _data_ptr(typingctx, arr):
+    """Return the address (int64) of a contiguous array's first element, without touching its refcount."""
+    sig = types.int64(arr)
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, value=args[0])
+        return builder.ptrtoint(ary.data, ir.IntType(64))
 
     return sig, codegen
 
 
 @njit(cache=True)
-def plugin_force(p, t, xr, vr, Xc, Vc, pq, fo):
-    """Evaluate the user plugin force at time t [s] since the run's start and state (x_r, v_r, X_c, V_c)
-    [m, m/s]: fo[0] = force on the magnet, fo[1] = force on the shell [N]; pq: its parameters (SI).
-
-    A plugin that raised or returned a non-finite force sets the latch fo[2] = 1 (the run stops with
+def plugin_force(pq, pfail, t, xr, vr, Xc, Vc):
+    """Return (F_m, F_c) [N], the user plugin force on the magnet and the shell at time t [s] since the
+    run's start and state (x_r, v_r, X_c, V_c) [m, m/s]; pq: [address, parameters...] (a copy of the row's
+    plugin slots from I_PLUG_FN). A plugin that fails sets pfail[0] = 1 (the run stops with
     STATUS_PLUGIN) and counts as zero force."""
-    st = _call_force_ptr(np.int64(p[I_PLUG_FN]), t, Xc + xr, Vc + vr, Xc, Vc, pq.ctypes.data, pq.shape[0],
-                         fo.ctypes.data)
-    if st != 0 or not (math.isfinite(fo[0]) and math.isfinite(fo[1])):
-        fo[2] = 1.0
-        fo[0] = 0.0
-        fo[1] = 0.0
+    addr = np.int64(pq[0])
+    q = _data_ptr(pq) + 8 * (I_PLUG_P0 - I_PLUG_FN)
+    Fm = _call_plugin_ptr(addr, 0, t, Xc + xr, Vc + vr, Xc, Vc, q)
+    Fc = _call_plugin_ptr(addr, 1, t, Xc + xr, Vc + vr, Xc, Vc, q)
+    if not (math.isfinite(Fm) and math.isfinite(Fc)):
+        pfail[0] = 1.0
+        return 0.0, 0.0
+    return Fm, Fc
 
 
 @njit(cache=True)
-def plugin_terms(p, t, contact, xr, vr, Xc, fe, pq, fo):
-    """Return (F_m, F_c, dF_c/dt) [N, N, N/s] of the plugin force on a shell at rest (V_c = 0) for the
-    stick test of :func:`decide_shell`; the rate by a central difference along the stuck motion
-    (X_c fixed, x_r'' from the magnet's equation). All zero without a plugin."""
-    if p[I_PLUG] < 0.5:
-        return 0.0, 0.0, 0.0
-    plugin_force(p, t, xr, vr, Xc, 0.0, pq, fo)
-    Fm = fo[0]
-    Fc = fo[1]
+def plugin_stick_terms(p, pq, pfail, t, contact, xr, vr, Xc, fe):
+    """Return (F_m, F_c, dF_c/dt) [N, N, N/s] of the plugin force on a shell at rest (V_c = 0) for the stick
+    test of :func:`decide_shell`; the rate by a central difference over 1e-7 of a drive period along the
+    stuck motion (X_c fixed, x_r'' from the magnet's equation)."""
+    Fm, Fc = plugin_force(pq, pfail, t, xr, vr, Xc, 0.0)
     K, C, F0 = contact_terms(p, contact)
     ar = (fe - (K * xr + C * vr + F0) + Fm) / p[I_MM]
     dt = 1e-7 / p[I_F]
-    plugin_force(p, t + dt, xr + dt * vr, vr + dt * ar, Xc, 0.0, pq, fo)
-    Fp = fo[1]
-    plugin_force(p, t - dt, xr - dt * vr, vr - dt * ar, Xc, 0.0, pq, fo)
-    Fn = fo[1]
+    _, Fp = plugin_force(pq, pfail, t + dt, xr + dt * vr, vr + dt * ar, Xc, 0.0)
+    _, Fn = plugin_force(pq, pfail, t - dt, xr - dt * vr, vr - dt * ar, Xc, 0.0)
     return Fm, Fc, (Fp - Fn) / (2.0 * dt)
 
 
 @njit(cache=True)
-def rk_rhs_plugin(p, contact, sgn, held, s, t, fe_level, y, dy, pq, fo):
-    """:func:`rk_rhs` plus the user plugin force: F_m on the magnet, F_c on the shell, its power
-    F_m V_m + F_c V_c integrated in y[9] (the energy balance's plugin work).
+def held_rhs(p, contact, s, fe_level, y, dy, Fm):
+    """Right-hand side (as :func:`rk_rhs`) of a shell held on a rigid wall with a plugin force: V_c = 0
+    while |F_i + F_c| stays inside the friction cone (the breakaway is an event of
+    :func:`seg_event_value`); only the magnet moves, M_m x_r'' = F_e - F_i + F_m. y[9] integrates the
+    plugin's power F_m V_m."""
+    K, C, F0 = contact_terms(p, contact)
+    fe = drive_force(p, s, fe_level)
+    Fi = K * y[0] + C * y[1] + F0
+    dy[0] = y[1]
+    dy[1] = (fe - Fi + Fm) / p[I_MM]
+    dy[2] = 0.0
+    dy[3] = 0.0
+    dy[4] = fe * y[1]
+    dy[5] = p[I_C] * y[1] * y[1]
+    dy[6] = (C - p[I_C]) * y[1] * y[1]
+    dy[7] = 0.0
+    dy[8] = 0.0
+    dy[9] = Fm * y[1]
 
-    held: the shell is stuck on a rigid wall (V_c = 0 while |F_i + F_c| stays inside the friction
-    cone; the breakaway is an event of :func:`seg_event_value`): only the magnet moves."""
+
+@njit(cache=True)
+def seg_rhs(p, contact, sgn, held, s, t0, fe_level, y, dy, pq, pfail):
+    """Right-hand side of the adaptive segment at time s within the period starting at t0 [s]:
+    :func:`rk_rhs` plus the user plugin force when the row carries one (F_m on the magnet, F_c on the
+    shell, their power F_m V_m + F_c V_c in y[9]); held: a shell stuck on a rigid wall (:func:`held_rhs`)."""
     if held:
-        K, C, F0 = contact_terms(p, contact)
-        fe = drive_force(p, s, fe_level)
-        Fi = K * y[0] + C * y[1] + F0
-        plugin_force(p, t, y[0], y[1], y[3], 0.0, pq, fo)
-        dy[0] = y[1]
-        dy[1] = (fe - Fi + fo[0]) / p[I_MM]
-        dy[2] = 0.0
-        dy[3] = 0.0
-        dy[4] = fe * y[1]
-        dy[5] = p[I_C] * y[1] * y[1]
-        dy[6] = (C - p[I_C]) * y[1] * y[1]
-        dy[7] = 0.0
-        dy[8] = 0.0
-        dy[9] = fo[0] * y[1]
+        Fm, _ = plugin_force(pq, pfail, t0 + s, y[0], y[1], y[3], 0.0)
+        held_rhs(p, contact, s, fe_level, y, dy, Fm)
         return
     rk_rhs(p, contact, sgn, s, fe_level, y, dy)
-    plugin_force(p, t, y[0], y[1], y[3], y[2], pq, fo)
-    dy[1] += fo[0] / p[I_MM] - fo[1] / p[I_MC]
-    dy[2] += fo[1] / p[I_MC]
-    dy[9] = fo[0] * (y[2] + y[1]) + fo[1] * y[2]
-
-
-@njit(cache=True)
-def seg_rhs(p, contact, sgn, held, s, t0, fe_level, y, dy, pq, fo):
-    """Right-hand side of the adaptive segment at time s within the period starting at t0 [s]:
-    :func:`rk_rhs`, or :func:`rk_rhs_plugin` when the parameter row carries a plugin force."""
     if p[I_PLUG] > 0.5:
-        rk_rhs_plugin(p, contact, sgn, held, s, t0 + s, fe_level, y, dy, pq, fo)
-    else:
-        rk_rhs(p, contact, sgn, s, fe_level, y, dy)
+        Fm, Fc = plugin_force(pq, pfail, t0 + s, y[0], y[1], y[3], y[2])
+        dy[1] += Fm / p[I_MM] - Fc / p[I_MC]
+        dy[2] += Fc / p[I_MC]
+        dy[9] = Fm * (y[2] + y[1]) + Fc * y[2]
 
 
 @njit(cache=True)
-def seg_event_value(p, contact, sgn, held, vlo, vhi, j, y, t, pq, fo):
+def seg_event_value(p, contact, sgn, held, vlo, vhi, j, y, t, pq, pfail):
     """Inside-positive event functions of an adaptive segment at time t [s] since the run's start:
-    :func:`rk_event_value`, and for a shell held on a rigid wall with a plugin force (held) the stick
-    test: j = 2 P_b - (F_i + F_c), j = 3 P_b + (F_i + F_c) (tilt-scaled P_b; 1 for a fixed shell)."""
+    :func:`rk_event_value`, or for a shell held with a plugin force its stick test (eq 21 with the plugin's
+    force on the shell): j = 2 P_b - (F_i + F_c), j = 3 P_b + (F_i + F_c), P_b tilt-scaled; 1 when fixed."""
     if held and j >= 2:
         if p[I_PB] == np.inf:
             return 1.0
+        _, Fc = plugin_force(pq, pfail, t, y[0], y[1], y[3], 0.0)
         K, C, F0 = contact_terms(p, contact)
-        plugin_force(p, t, y[0], y[1], y[3], 0.0, pq, fo)
-        F = K * y[0] + C * y[1] + F0 + fo[1]
+        F = K * y[0] + C * y[1] + F0 + Fc
         Pb = p[I_PB] * tilt_factor(p, y[0])
         return Pb - F if j == 2 else Pb + F
     return rk_event_value(p, contact, sgn, vlo, vhi, j, y)
@@ -1602,10 +1610,11 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     k7 = np.zeros(NY)
     rc = np.zeros((5, NY))
     yd = np.zeros(NY)
-    # user plugin force: its parameters (contiguous) and its output [F_m, F_c, failure latch]
+    # user plugin force: a contiguous copy of the row (the plugin reads it by pointer), a scratch state
+    # and output, and the failure latch
     plug = p[I_PLUG] > 0.5
-    pq = p[I_PLUG_P0:I_PLUG_P0 + int(p[I_PLUG_NP])].copy() if plug else np.zeros(0)
-    fo = np.zeros(3)
+    pq = p[I_PLUG_FN:].copy()  # [address, n, parameters]: contiguous, read by the plugin through a pointer
+    pfail = np.zeros(1)
 
     xr = state0[0]
     vr = state0[1]
@@ -1619,17 +1628,18 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     if compliant:
         Fc0 = 0.0
         if plug:
-            plugin_force(p, 0.0, xr, vr, Xc, Vc, pq, fo)
-            Fc0 = fo[1]
+            _, Fc0 = plugin_force(pq, pfail, 0.0, xr, vr, Xc, Vc)
         shell = decide_patch(p, contact, xr, vr, Vc, dsub, fe0, Fc0)
-        if fo[2] != 0.0:
+        if pfail[0] != 0.0:
             return STATUS_PLUGIN, 0.0, samples, 0, events, 0, periods, energy, final
         if shell < 0:
             return STATUS_ILLPOSED, 0.0, samples, 0, events, 0, periods, energy, final
     elif Vc == 0.0:
-        Fm0, Fc0, dFc0 = plugin_terms(p, 0.0, contact, xr, vr, Xc, fe0, pq, fo)
+        Fm0, Fc0, dFc0 = 0.0, 0.0, 0.0
+        if plug:
+            Fm0, Fc0, dFc0 = plugin_stick_terms(p, pq, pfail, 0.0, contact, xr, vr, Xc, fe0)
         shell = decide_shell(p, contact, xr, vr, fe0, Fm0, Fc0, dFc0)
-        if fo[2] != 0.0:
+        if pfail[0] != 0.0:
             return STATUS_PLUGIN, 0.0, samples, 0, events, 0, periods, energy, final
         if shell < 0:
             return STATUS_ILLPOSED, 0.0, samples, 0, events, 0, periods, energy, final
@@ -1997,7 +2007,10 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
         else:
             # ---------------- adaptive segment: speed-dependent law above V_min (DOPRI5, dense output)
             sg = 1.0 if (shell == FAST_POS or shell == SLIP_POS) else -1.0
-            # a shell stuck on a rigid wall comes here only with a plugin force: it is held (V_c = 0)
+            # a shell stuck on a rigid wall comes here only with a plugin force: it is held (V_c = 0).
+            # With a plugin the right-hand side and events are seg_rhs / seg_event_value; without, rk_rhs /
+            # rk_event_value are called directly: a plugin call inside them keeps LLVM from inlining
+            # them here (measured: the speed-law slips 40 % slower), so the branch sits at the call sites.
             held = shell == STICK
             t0 = period * T
             # a slip (not fast) mode here is a general linear mode with nearly defective eigenvectors:
@@ -2025,7 +2038,10 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             y[8] = dsub
             tau = 0.0
             hh = hmax * 0.1
-            seg_rhs(p, contact, sg, held, s, t0, fe_level, y, k1, pq, fo)
+            if plug:
+                seg_rhs(p, contact, sg, held, s, t0, fe_level, y, k1, pq, pfail)
+            else:
+                rk_rhs(p, contact, sg, s, fe_level, y, k1)
             atol_x = rtol * p[I_XS]
             atol_v = rtol * p[I_VS]
             nsteps = 0
@@ -2044,23 +2060,41 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                 sa = s + tau
                 for i in range(NY):
                     yt[i] = y[i] + hh * A21 * k1[i]
-                seg_rhs(p, contact, sg, held, sa + C2 * hh, t0, fe_level, yt, k2, pq, fo)
+                if plug:
+                    seg_rhs(p, contact, sg, held, sa + C2 * hh, t0, fe_level, yt, k2, pq, pfail)
+                else:
+                    rk_rhs(p, contact, sg, sa + C2 * hh, fe_level, yt, k2)
                 for i in range(NY):
                     yt[i] = y[i] + hh * (A31 * k1[i] + A32 * k2[i])
-                seg_rhs(p, contact, sg, held, sa + C3 * hh, t0, fe_level, yt, k3, pq, fo)
+                if plug:
+                    seg_rhs(p, contact, sg, held, sa + C3 * hh, t0, fe_level, yt, k3, pq, pfail)
+                else:
+                    rk_rhs(p, contact, sg, sa + C3 * hh, fe_level, yt, k3)
                 for i in range(NY):
                     yt[i] = y[i] + hh * (A41 * k1[i] + A42 * k2[i] + A43 * k3[i])
-                seg_rhs(p, contact, sg, held, sa + C4 * hh, t0, fe_level, yt, k4, pq, fo)
+                if plug:
+                    seg_rhs(p, contact, sg, held, sa + C4 * hh, t0, fe_level, yt, k4, pq, pfail)
+                else:
+                    rk_rhs(p, contact, sg, sa + C4 * hh, fe_level, yt, k4)
                 for i in range(NY):
                     yt[i] = y[i] + hh * (A51 * k1[i] + A52 * k2[i] + A53 * k3[i] + A54 * k4[i])
-                seg_rhs(p, contact, sg, held, sa + C5 * hh, t0, fe_level, yt, k5, pq, fo)
+                if plug:
+                    seg_rhs(p, contact, sg, held, sa + C5 * hh, t0, fe_level, yt, k5, pq, pfail)
+                else:
+                    rk_rhs(p, contact, sg, sa + C5 * hh, fe_level, yt, k5)
                 for i in range(NY):
                     yt[i] = y[i] + hh * (A61 * k1[i] + A62 * k2[i] + A63 * k3[i] + A64 * k4[i] + A65 * k5[i])
-                seg_rhs(p, contact, sg, held, sa + hh, t0, fe_level, yt, k6, pq, fo)
+                if plug:
+                    seg_rhs(p, contact, sg, held, sa + hh, t0, fe_level, yt, k6, pq, pfail)
+                else:
+                    rk_rhs(p, contact, sg, sa + hh, fe_level, yt, k6)
                 for i in range(NY):
                     y1[i] = y[i] + hh * (B1 * k1[i] + B3 * k3[i] + B4 * k4[i] + B5 * k5[i] + B6 * k6[i])
-                seg_rhs(p, contact, sg, held, sa + hh, t0, fe_level, y1, k7, pq, fo)
-                if fo[2] != 0.0:
+                if plug:
+                    seg_rhs(p, contact, sg, held, sa + hh, t0, fe_level, y1, k7, pq, pfail)
+                else:
+                    rk_rhs(p, contact, sg, sa + hh, fe_level, y1, k7)
+                if pfail[0] != 0.0:
                     status = STATUS_PLUGIN
                     status_t = t0 + sa
                     break
@@ -2085,7 +2119,10 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                 th_ev = 2.0
                 e_ev = -1
                 for j in range(4):
-                    g1 = seg_event_value(p, contact, sg, held, vlo, vhi, j, y1, t0 + sa + hh, pq, fo)
+                    if plug:
+                        g1 = seg_event_value(p, contact, sg, held, vlo, vhi, j, y1, t0 + sa + hh, pq, pfail)
+                    else:
+                        g1 = rk_event_value(p, contact, sg, vlo, vhi, j, y1)
                     lo = 0.0
                     hi = -1.0
                     if g1 < 0.0:
@@ -2117,8 +2154,12 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                         for _ in range(80):
                             mth = 0.5 * (a_ + b_)
                             dense_eval(rc, mth, yd)
-                            if seg_event_value(p, contact, sg, held, vlo, vhi, j, yd, t0 + sa + mth * hh, pq,
-                                               fo) >= 0.0:
+                            if plug:
+                                gmid = seg_event_value(p, contact, sg, held, vlo, vhi, j, yd, t0 + sa + mth * hh,
+                                                       pq, pfail)
+                            else:
+                                gmid = rk_event_value(p, contact, sg, vlo, vhi, j, yd)
+                            if gmid >= 0.0:
                                 a_ = mth
                             else:
                                 b_ = mth
@@ -2268,10 +2309,9 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
         pFm, pFc, pdFc = 0.0, 0.0, 0.0
         if plug and ev != EV_NONE:
             if compliant:
-                plugin_force(p, t_glob, xr, vr, Xc, Vc, pq, fo)
-                pFc = fo[1]
+                _, pFc = plugin_force(pq, pfail, t_glob, xr, vr, Xc, Vc)
             else:
-                pFm, pFc, pdFc = plugin_terms(p, t_glob, contact, xr, vr, Xc, fe_now, pq, fo)
+                pFm, pFc, pdFc = plugin_stick_terms(p, pq, pfail, t_glob, contact, xr, vr, Xc, fe_now)
         if compliant:
             if ev == EV_BREAK_POS or ev == EV_BREAK_NEG:
                 new_shell = decide_patch(p, contact, xr, vr, Vc, dsub, fe_now, pFc)
@@ -2295,7 +2335,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             else:
                 Vc = 0.0
                 new_shell = decide_shell(p, contact, xr, vr, fe_now, pFm, pFc, pdFc)
-        if fo[2] != 0.0:
+        if pfail[0] != 0.0:
             status = STATUS_PLUGIN
             status_t = t_glob
             break

@@ -31,9 +31,10 @@ The function (:data:`FORCE_SIGNATURE`):
   (:data:`engine.STATUS_PLUGIN`), exit code 2.
 
 The force is compiled once per process (its ``njit`` body is cached on disk by numba when the plugin
-file's folder allows it) and wrapped in a C-callable ``cfunc`` of one fixed signature; the engine
-(compiled once, cached) calls it through its address, carried in the parameter row with the
-parameters. So a plugin does not recompile the engine. Every mode of a system with a plugin force goes
+file's folder allows it) and wrapped in a C-callable ``cfunc`` of one fixed signature
+(:func:`_cfunc`); the engine (compiled once, cached)
+calls it through its address, carried in the parameter row with the parameters. So a plugin does not
+recompile the engine, and the engine's code for runs without a plugin only gains untaken branches. Every mode of a system with a plugin force goes
 through the engine's adaptive (Dormand-Prince) segment; the stick test and the energy balance count it
 (``plugin_work_J``). Several force effects in one model add their forces.
 """
@@ -124,24 +125,29 @@ def _sum(f, g, nf):
     return force
 
 
-def _cfunc(h):
+def _cfunc(h, n_params: int):
+    """Return the C-callable plugin of the engine around the summed force ``h`` with ``n_params``
+    parameters: ``double plugin(int64 which, double t, double x_m, double v_m, double x_c, double v_c,
+    double *q)`` returns the force on the magnet (which = 0) or on the shell (1) [N], NaN when ``h``
+    raised or returned a non-finite force (engine.plugin_force). It reads q and writes no memory."""
     from numba import carray, cfunc, types
 
-    sig = types.int64(types.float64, types.float64, types.float64, types.float64, types.float64,
-                      types.CPointer(types.float64), types.int64, types.CPointer(types.float64))
+    sig = types.float64(types.int64, types.float64, types.float64, types.float64, types.float64, types.float64,
+                        types.CPointer(types.float64))
+    n = int(n_params)
 
     @cfunc(sig)
-    def force(t, xm, vm, xc, vc, pp, n, out):
-        p = carray(pp, (n,))
+    def plugin(which, t, xm, vm, xc, vc, qp):
+        q = carray(qp, (n,))
         try:
-            r = h(t, xm, vm, xc, vc, p)
+            Fm, Fc = h(t, xm, vm, xc, vc, q)
         except Exception:  # noqa: BLE001  (reported by the engine as STATUS_PLUGIN)
-            return 1
-        out[0] = r[0]
-        out[1] = r[1]
-        return 0
+            return math.nan
+        if not (math.isfinite(Fm) and math.isfinite(Fc)):
+            return math.nan
+        return Fm if which == 0 else Fc
 
-    return force
+    return plugin
 
 
 def _check_one(eff, jf, p: np.ndarray, where: str) -> None:
@@ -199,7 +205,7 @@ def compile_forces(forces: Sequence[tuple], where: str = "") -> CompiledForce:
         total = _sum(total, _one(jf), n_acc)
         n_acc += n
     try:
-        cf = _cfunc(total)
+        cf = _cfunc(total, sum(nps))
     except Exception as exc:  # noqa: BLE001
         names = ", ".join(e.name for e in effs)
         raise InputError(f"{where}plugin forces ({names}) do not compile together: {_first_line(exc)}") from None
