@@ -227,7 +227,8 @@ def register(app: typer.Typer) -> None:
                 needs = f" needs {', '.join(e['covariates'])};" if e["covariates"] else ""
                 only = f" base {'/'.join(e['bases'])} only;" if e["bases"] else ""
                 rep = f" repeatable as {e['name']}_2, {e['name']}_3 ...;" if e["repeatable"] else ""
-                role = {"drive": " drive transform;", "force": " plugin force (numba, adaptive path);"}.get(e["role"], "")
+                role = {"drive": " drive transform;",
+                        "force": " plugin force (numba, adaptive path);"}.get(e["role"], "")
                 typer.echo(f"effect {e['name']} ({e['origin']};{role}{needs}{only}{rep} source: {e['source']})")
                 typer.echo(f"    {e['description']}")
                 for p in e["params"]:

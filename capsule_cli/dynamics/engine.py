@@ -1350,19 +1350,18 @@ def held_rhs(p, contact, s, fe_level, y, dy, Fm):
 
 @njit(cache=True)
 def seg_rhs(p, contact, sgn, held, s, t0, fe_level, y, dy, pq, pfail):
-    """Right-hand side of the adaptive segment at time s within the period starting at t0 [s]:
-    :func:`rk_rhs` plus the user plugin force when the row carries one (F_m on the magnet, F_c on the
-    shell, their power F_m V_m + F_c V_c in y[9]); held: a shell stuck on a rigid wall (:func:`held_rhs`)."""
+    """Right-hand side of the adaptive segment with a user plugin force, at time s within the period
+    starting at t0 [s]: :func:`rk_rhs` plus F_m on the magnet and F_c on the shell, their power
+    F_m V_m + F_c V_c in y[9]; held: a shell stuck on a rigid wall (:func:`held_rhs`)."""
     if held:
         Fm, _ = plugin_force(pq, pfail, t0 + s, y[0], y[1], y[3], 0.0)
         held_rhs(p, contact, s, fe_level, y, dy, Fm)
         return
     rk_rhs(p, contact, sgn, s, fe_level, y, dy)
-    if p[I_PLUG] > 0.5:
-        Fm, Fc = plugin_force(pq, pfail, t0 + s, y[0], y[1], y[3], y[2])
-        dy[1] += Fm / p[I_MM] - Fc / p[I_MC]
-        dy[2] += Fc / p[I_MC]
-        dy[9] = Fm * (y[2] + y[1]) + Fc * y[2]
+    Fm, Fc = plugin_force(pq, pfail, t0 + s, y[0], y[1], y[3], y[2])
+    dy[1] += Fm / p[I_MM] - Fc / p[I_MC]
+    dy[2] += Fc / p[I_MC]
+    dy[9] = Fm * (y[2] + y[1]) + Fc * y[2]
 
 
 @njit(cache=True)
@@ -1610,8 +1609,8 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     k7 = np.zeros(NY)
     rc = np.zeros((5, NY))
     yd = np.zeros(NY)
-    # user plugin force: a contiguous copy of the row (the plugin reads it by pointer), a scratch state
-    # and output, and the failure latch
+    # user plugin force: the row's plugin slots (a contiguous copy the plugin reads through a pointer)
+    # and the failure latch
     plug = p[I_PLUG] > 0.5
     pq = p[I_PLUG_FN:].copy()  # [address, n, parameters]: contiguous, read by the plugin through a pointer
     pfail = np.zeros(1)

@@ -31,12 +31,12 @@ The function (:data:`FORCE_SIGNATURE`):
   (:data:`engine.STATUS_PLUGIN`), exit code 2.
 
 The force is compiled once per process (its ``njit`` body is cached on disk by numba when the plugin
-file's folder allows it) and wrapped in a C-callable ``cfunc`` of one fixed signature
-(:func:`_cfunc`); the engine (compiled once, cached)
-calls it through its address, carried in the parameter row with the parameters. So a plugin does not
-recompile the engine, and the engine's code for runs without a plugin only gains untaken branches. Every mode of a system with a plugin force goes
-through the engine's adaptive (Dormand-Prince) segment; the stick test and the energy balance count it
-(``plugin_work_J``). Several force effects in one model add their forces.
+file's folder allows it) and wrapped in a C-callable ``cfunc`` of one fixed signature (:func:`_cfunc`);
+the engine (compiled once, cached) calls it through its address, carried in the parameter row with the
+parameters. So a plugin does not recompile the engine, and the runs without a plugin keep their code.
+Every mode of a system with a plugin force goes through the engine's adaptive (Dormand-Prince) segment;
+the stick test and the energy balance count it (``plugin_work_J``). Several force effects in one model
+add their forces. The user's function must not modify ``p``.
 """
 from __future__ import annotations
 
