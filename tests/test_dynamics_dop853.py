@@ -24,6 +24,9 @@ def test_tableau_meets_the_order_conditions_it_can_be_checked_on():
     assert abs(E.DOP_E5.sum()) < 1e-14 and abs(E.DOP_E3.sum()) < 1e-14
 
 
+NOPLUG = np.zeros(4)  # no plugin force: the plugin's parameter block is not read
+
+
 @pytest.fixture(scope="module")
 def slip_case():
     """eq 22 slip, shell fast forward, no contact: the adaptive segment's right-hand side."""
@@ -37,7 +40,7 @@ def slip_case():
 def _step(p, y, s, h):
     k1, K, yt, y1, k7 = np.zeros(E.NY), np.zeros((E.DOP_NK, E.NY)), np.zeros(E.NY), np.zeros(E.NY), np.zeros(E.NY)
     E.rk_rhs(p, 0, 1.0, s, 0.0, y, k1)
-    E.dop853_step(p, 0, 1.0, s, h, 0.0, y, k1, K, yt, y1, k7)
+    E.dop853_step(p, 0, 1.0, s, h, 0.0, y, k1, K, yt, y1, k7, False, False, 0.0, NOPLUG, np.zeros(1))
     return y1, K, yt
 
 
@@ -58,7 +61,7 @@ def test_step_is_eighth_order_and_dense_output_seventh(slip_case):
         y1, K, yt = _step(p, y, s0, h)
         errs.append(abs(y1[1] - yr[1]))
         rc = np.zeros((8, E.NY))
-        E.dop853_dense(p, 0, 1.0, s0, h, 0.0, y, y1, K, yt, rc)
+        E.dop853_dense(p, 0, 1.0, s0, h, 0.0, y, y1, K, yt, rc, False, False, 0.0, NOPLUG, np.zeros(1))
         out = np.zeros(E.NY)
         E.dense_eval(rc, 0.0, out)
         assert np.array_equal(out[:4], y[:4])

@@ -28,6 +28,12 @@ def _parse_set(items: list[str] | None) -> dict[str, float]:
     return out
 
 
+def _load_plugins(plugins) -> None:
+    from ..effects.registry import load_plugins
+
+    load_plugins(plugins or [])
+
+
 def _setup(model, set_, waveform, f_Hz, Pd_N, duty, friction, Pf_N, literal, v_min_mm_s, speed_unit="mm/s",
            static_N=None):
     from ..dynamics.model import Drive
@@ -71,6 +77,8 @@ STATIC_OPT = typer.Option(None, "--static-N", help="Coulomb breakaway (static) l
                           "kinetic --Pf-N (held at least at --Pf-N unless --literal)")
 UNIT_OPT = typer.Option("mm/s", "--law-speed-unit", help="unit V is taken in by the eq22/eq23 laws: mm/s (as "
                         "fitted, physics.md) or m/s (sensitivity case: the law fed SI speeds, docs/dynamics.md)")
+PLUGINS_OPT = typer.Option(None, "--plugins", help="Python file(s) registering effects a --model file lists "
+                           "(drive transforms, plugin forces: capsule_cli.dynamics.plugin_force); repeatable")
 VMIN_OPT = typer.Option(None, "--v-min-mm-s", help="speed [mm/s] below which the speed law is held (default 0.2)")
 
 
@@ -86,7 +94,7 @@ def register(app: typer.Typer) -> None:
         model: str = MODEL_OPT, set_: Optional[List[str]] = SET_OPT, waveform: str = WAVE_OPT,
         duty: float = DUTY_OPT, friction: str = FRIC_OPT, Pf_N: Optional[float] = PF_OPT,
         literal: bool = LIT_OPT, v_min_mm_s: Optional[float] = VMIN_OPT, law_speed_unit: str = UNIT_OPT,
-        static_N: Optional[float] = STATIC_OPT,
+        static_N: Optional[float] = STATIC_OPT, plugins: Optional[List[Path]] = PLUGINS_OPT,
         periods: int = typer.Option(50, "--periods", help="recorded drive periods [-]"),
         transient_periods: int = typer.Option(0, "--transient-periods", help="periods run first, not recorded [-]"),
         sample_rate_Hz: float = typer.Option(5000.0, "--sample-rate-Hz", help="trajectory sampling rate [Hz] "
@@ -103,6 +111,7 @@ def register(app: typer.Typer) -> None:
         from ..progress import compile_notice
         from ..steps.dynamics import simulate_to_dir
 
+        _load_plugins(plugins)
         m, d, fr = _setup(model, set_, waveform, f_Hz, Pd_N, duty, friction, Pf_N, literal, v_min_mm_s,
                           law_speed_unit, static_N)
         if figure is not None:
@@ -146,7 +155,7 @@ def register(app: typer.Typer) -> None:
         model: str = MODEL_OPT, set_: Optional[List[str]] = SET_OPT, waveform: str = WAVE_OPT,
         duty: float = DUTY_OPT, friction: str = FRIC_OPT, Pf_N: Optional[float] = PF_OPT,
         literal: bool = LIT_OPT, v_min_mm_s: Optional[float] = VMIN_OPT, law_speed_unit: str = UNIT_OPT,
-        static_N: Optional[float] = STATIC_OPT,
+        static_N: Optional[float] = STATIC_OPT, plugins: Optional[List[Path]] = PLUGINS_OPT,
         transient_periods: int = typer.Option(300, "--transient-periods", help="periods discarded per point [-]"),
         periods: int = typer.Option(50, "--periods", help="periods recorded per point [-]"),
         label: str = typer.Option("", "--label", help="name of the sweep (stored in the provenance)"),
@@ -164,6 +173,7 @@ def register(app: typer.Typer) -> None:
 
         if num < 1:
             raise InputError("--num must be >= 1")
+        _load_plugins(plugins)
         m, d, fr = _setup(model, set_, waveform, f_Hz, Pd_N, duty, friction, Pf_N, literal, v_min_mm_s,
                           law_speed_unit, static_N)
         state0 = _parse_state(initial_state)
@@ -191,7 +201,7 @@ def register(app: typer.Typer) -> None:
         fig19: bool = typer.Option(False, "--fig19", help="the eight frictions of seed 000 Fig 19 "
                                    "(configs/bench/fig19.yaml: 0.007, 0.17, 2.5, 4.5, 10 N, inf, eq22, eq23)"),
         protocol: str = typer.Option("rest", "--protocol", help="rest, or up/down continuation in f"),
-        model: str = MODEL_OPT, set_: Optional[List[str]] = SET_OPT,
+        model: str = MODEL_OPT, set_: Optional[List[str]] = SET_OPT, plugins: Optional[List[Path]] = PLUGINS_OPT,
         transient_periods: int = typer.Option(200, "--transient-periods", help="periods discarded per point "
                                               "(steady state only is recorded) [-]"),
         periods: int = typer.Option(30, "--periods", help="periods recorded per point [-]"),
@@ -234,6 +244,7 @@ def register(app: typer.Typer) -> None:
                 frictions = ["0.007"]
             if Pd_num < 1 or f_num < 1:
                 raise InputError("--Pd-num and --f-num must be >= 1")
+            _load_plugins(plugins)
             if rk_rtol is None:
                 rk_rtol = map_rk_rtol()
             if not (math.isfinite(rk_rtol) and 1e-14 <= rk_rtol <= 1e-4):

@@ -207,7 +207,8 @@ def register(app: typer.Typer) -> None:
                        "params": [prm(p) for p in b.params]} for b in bases(kind)],
             "effects": [{"name": e.name, "kind": e.kind, "origin": e.origin, "covariates": list(e.covariates),
                          "bases": list(e.bases), "description": e.description, "source": e.source,
-                         "repeatable": e.repeatable, "params": [prm(p) for p in e.params]} for e in effects(kind)],
+                         "repeatable": e.repeatable, "role": e.role,
+                         "params": [prm(p) for p in e.params]} for e in effects(kind)],
         }
         if as_json:
             typer.echo(json.dumps(items, indent=2, default=str))
@@ -226,7 +227,9 @@ def register(app: typer.Typer) -> None:
                 needs = f" needs {', '.join(e['covariates'])};" if e["covariates"] else ""
                 only = f" base {'/'.join(e['bases'])} only;" if e["bases"] else ""
                 rep = f" repeatable as {e['name']}_2, {e['name']}_3 ...;" if e["repeatable"] else ""
-                typer.echo(f"effect {e['name']} ({e['origin']};{needs}{only}{rep} source: {e['source']})")
+                role = {"drive": " drive transform;",
+                        "force": " plugin force (numba, adaptive path);"}.get(e["role"], "")
+                typer.echo(f"effect {e['name']} ({e['origin']};{role}{needs}{only}{rep} source: {e['source']})")
                 typer.echo(f"    {e['description']}")
                 for p in e["params"]:
                     lo, hi = p["bounds"]

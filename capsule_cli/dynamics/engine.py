@@ -57,7 +57,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, objmode, prange
+from llvmlite import ir
+from numba import njit, objmode, prange, types
+from numba.extending import intrinsic
 
 # ---------------------------------------------------------------------------
 # parameter vector (SI), built by capsule_cli.dynamics.model.pack_params
@@ -69,7 +71,12 @@ I_XS, I_VS, I_FS = 22, 23, 24
 I_CV, I_KAP, I_VFAST = 25, 26, 27
 # substrate compliance: k_s = 1/compliance (0: rigid wall, off), c_s
 I_KS, I_CS = 28, 29
-N_PARAMS = 30
+# user plugin forces (capsule_cli.dynamics.plugin_force, issue 9 item 4): I_PLUG 1 = active (every mode then
+# goes through the adaptive segment); I_PLUG_FN the address of the compiled force (a C function pointer,
+# exact in a float64: addresses are below 2**53); I_PLUG_NP its number of parameters, stored from I_PLUG_P0
+I_PLUG, I_PLUG_FN, I_PLUG_NP, I_PLUG_P0 = 30, 31, 32, 33
+MAX_PLUG_PARAMS = 16
+N_PARAMS = I_PLUG_P0 + MAX_PLUG_PARAMS
 
 # options vector
 O_NPER, O_ENERGY, O_RTOL, O_ZENO, O_MAXSTEPS, O_EXACT = 0, 1, 2, 3, 4, 5
@@ -94,6 +101,7 @@ EVENT_KIND_NAMES = {1: "front_contact_on", 2: "front_contact_off", 3: "back_cont
                     8: "drive_on", 9: "drive_off"}
 
 STATUS_OK, STATUS_ZENO, STATUS_ILLPOSED, STATUS_RKFAIL, STATUS_EVCAP = 0, 1, 2, 3, 4
+STATUS_PLUGIN = 5  # a user plugin force raised or returned a non-finite value
 
 # sample columns
 S_T, S_XM, S_XC, S_VM, S_VC, S_XR, S_CONTACT, S_STICK, S_FI = range(9)
@@ -103,6 +111,8 @@ P_DISP, P_NFRONT, P_NBACK, P_MAXF, P_XR0, P_VR0, P_STICK, P_XC0, P_TMAXF, P_NSTI
 N_PERIOD_COLS = 12
 # energy entries
 E_DRIVE, E_DAMP, E_CONTACT, E_FRIC, E_START, E_END = range(6)
+E_PLUGIN = 6  # work done by the user plugin forces [J]
+N_ENERGY = 7
 
 # basis of a linear mode (:func:`basis`): modal slot 1, drive cos/sin, 1, tau, tau^2, modal slot 2
 NB = 9
@@ -204,11 +214,13 @@ def stored_energy(p, xr, vr, Vc):
 
 
 @njit(cache=True)
-def decide_shell(p, contact, xr, vr, fe):
+def decide_shell(p, contact, xr, vr, fe, Fm, Fc, dFc):
     """Return the shell state at V_c = 0 by the set-valued law (eqs 21-23).
 
-    Sticks while |F_i| < P_break; slips in the direction of F_i when |F_i| > P_break;
-    at the threshold, sticks when F_i is moving back inside. Returns -1 when the
+    Sticks while |F_i + F_c| < P_break; slips in the direction of F_i + F_c when it is above;
+    at the threshold, sticks when that force is moving back inside. F_m, F_c [N] are the user
+    plugin forces on the magnet and the shell at this instant and dFc [N/s] the rate of F_c along
+    the stuck motion (all 0 without a plugin: :func:`plugin_stick_terms`). Returns -1 when the
     shell cannot stick and cannot slip either (breakaway below the kinetic level at
     0+: the literal eq 22, a Zeno stick-slip loop).
     """
@@ -219,15 +231,16 @@ def decide_shell(p, contact, xr, vr, fe):
     if tilt:
         Pb *= tilt_factor(p, xr)
     K, C, F0 = contact_terms(p, contact)
-    F = K * xr + C * vr + F0
+    Fi = K * xr + C * vr + F0
+    F = Fi + Fc
     tol = 1e-12 * p[I_FS]
     aF = abs(F)
     if aF < Pb - tol:
         return STICK
     sgn = 1.0 if F > 0.0 else -1.0
     if aF <= Pb + tol:
-        ar = (fe - F) / p[I_MM]
-        Fdot = K * vr + C * ar
+        ar = (fe - Fi + Fm) / p[I_MM]
+        Fdot = K * vr + C * ar + dFc
         if tilt:
             # the threshold moves with x_r: stick when |F_i| - P_b(x_r) is not increasing
             dPb = p[I_PB] * p[I_KAP] / p[I_G1] * vr if Pb > 0.0 else 0.0
@@ -1084,7 +1097,7 @@ def gl_energy(p, coef, contact, shell, s0, tau1, h, h_slow, md, Om, fe_level, B,
 # the adaptive segment: slip with a speed-dependent law (eqs 22-23 above V_min), integrated by
 # DOP853 (below); its right-hand side and event functions
 
-NY = 9
+NY = 10  # x_r, v_r, V_c, X_c, W_drive, D_damp, D_contact, D_friction, d, W_plugin
 
 
 @njit(cache=True)
@@ -1368,11 +1381,12 @@ RK_ORDER_EXP = 1.0 / 8.0  # step-size exponent: 1 / (error-estimator order 7 + 1
 
 
 @njit(cache=True)
-def dop853_step(p, contact, sg, s, h, fe_level, y, k1, K, yt, y1, k7):
+def dop853_step(p, contact, sg, s, h, fe_level, y, k1, K, yt, y1, k7, plug, held, t0, pq, pfail):
     """One DOP853 step of size h [s] from y at time s within the period (derivative k1 = f(s, y)).
 
     Fills the stages K[0..12] (K[12] = f(s + h, y1), also copied to k7 for the next step, FSAL)
-    and the 8th-order solution y1."""
+    and the 8th-order solution y1. plug: a user plugin force acts (:func:`seg_rhs` with held, t0,
+    pq, pfail; else :func:`rk_rhs`)."""
     for q in range(NY):
         K[0, q] = k1[q]
     for i in range(1, 12):
@@ -1385,13 +1399,19 @@ def dop853_step(p, contact, sg, s, h, fe_level, y, k1, K, yt, y1, k7):
                     yt[q] += a * K[m, q]
         for q in range(NY):
             yt[q] = y[q] + h * yt[q]
-        rk_rhs(p, contact, sg, s + DOP_C[i] * h, fe_level, yt, K[i])
+        if plug:
+            seg_rhs(p, contact, sg, held, s + DOP_C[i] * h, t0, fe_level, yt, K[i], pq, pfail)
+        else:
+            rk_rhs(p, contact, sg, s + DOP_C[i] * h, fe_level, yt, K[i])
     for q in range(NY):
         acc = 0.0
         for m in range(12):
             acc += DOP_B[m] * K[m, q]
         y1[q] = y[q] + h * acc
-    rk_rhs(p, contact, sg, s + h, fe_level, y1, K[12])
+    if plug:
+        seg_rhs(p, contact, sg, held, s + h, t0, fe_level, y1, K[12], pq, pfail)
+    else:
+        rk_rhs(p, contact, sg, s + h, fe_level, y1, K[12])
     for q in range(NY):
         k7[q] = K[12, q]
 
@@ -1418,9 +1438,10 @@ def dop853_error(K, h, y, y1, rtol, atol_x, atol_v):
 
 
 @njit(cache=True)
-def dop853_dense(p, contact, sg, s, h, fe_level, y, y1, K, yt, rc):
+def dop853_dense(p, contact, sg, s, h, fe_level, y, y1, K, yt, rc, plug, held, t0, pq, pfail):
     """Continuous extension of an accepted DOP853 step: three more stages, then rc[0] = y and
-    rc[1..7] the coefficients evaluated by :func:`dense_eval` (7th order in theta)."""
+    rc[1..7] the coefficients evaluated by :func:`dense_eval` (7th order in theta); plug, held, t0,
+    pq, pfail as in :func:`dop853_step`."""
     for i in range(13, 16):
         for q in range(NY):
             yt[q] = 0.0
@@ -1431,7 +1452,10 @@ def dop853_dense(p, contact, sg, s, h, fe_level, y, y1, K, yt, rc):
                     yt[q] += a * K[m, q]
         for q in range(NY):
             yt[q] = y[q] + h * yt[q]
-        rk_rhs(p, contact, sg, s + DOP_C[i] * h, fe_level, yt, K[i])
+        if plug:
+            seg_rhs(p, contact, sg, held, s + DOP_C[i] * h, t0, fe_level, yt, K[i], pq, pfail)
+        else:
+            rk_rhs(p, contact, sg, s + DOP_C[i] * h, fe_level, yt, K[i])
     for q in range(NY):
         dy = y1[q] - y[q]
         rc[0, q] = y[q]
@@ -1472,9 +1496,10 @@ def patch_force(p, d, Vc):
 
 
 @njit(cache=True)
-def decide_patch(p, contact, xr, vr, Vc, d, fe):
+def decide_patch(p, contact, xr, vr, Vc, d, fe, Fc):
     """Return the patch state (PATCH_STICK, FAST_POS, FAST_NEG; -1 ill-posed) by the set-valued
-    law applied to the patch force (substrate_compliance), as :func:`decide_shell` for the shell."""
+    law applied to the patch force (substrate_compliance), as :func:`decide_shell` for the shell
+    (Fc [N]: the user plugin force on the shell, 0 without a plugin)."""
     Pb = p[I_PB]
     if Pb == np.inf:
         return PATCH_STICK
@@ -1488,7 +1513,7 @@ def decide_patch(p, contact, xr, vr, Vc, d, fe):
     if aF <= Pb + tol:
         K, C, F0 = contact_terms(p, contact)
         Fi = K * xr + C * vr + F0
-        ac = (Fi - F - p[I_CV] * Vc) / p[I_MC]
+        ac = (Fi - F - p[I_CV] * Vc + Fc) / p[I_MC]
         Fdot = p[I_KS] * Vc + p[I_CS] * ac
         dPb = p[I_PB] * p[I_KAP] / p[I_G1] * vr if Pb > 0.0 else 0.0
         if sgn * Fdot - dPb <= 0.0:
@@ -1536,6 +1561,131 @@ def rk_event_value(p, contact, sgn, vlo, vhi, j, y):
     if contact == 1:
         return y[0] - G1 if j == 0 else 1.0
     return -G2 - y[0] if j == 0 else 1.0
+
+
+# ---------------------------------------------------------------------------
+# user plugin forces (issue 9 item 4; capsule_cli.dynamics.plugin_force compiles them)
+#
+# The engine is compiled once and cached; a plugin force comes as a C-callable function (a numba ``cfunc``
+# built by plugin_force.compile_forces) of one fixed signature
+#     double plugin(int64 which, double t, double x_m, double v_m, double x_c, double v_c, double *q)
+# returning the force on the magnet (which = 0) or on the shell (which = 1) [N] at time t [s] since the
+# run's start, NaN when the user's function raised or returned a non-finite force; q: its parameters (SI).
+# Its address travels in the parameter row (I_PLUG_FN) and the engine calls it indirectly, only on the
+# plugin's own branches (seg_rhs, seg_event_value, plugin_stick_terms): the code of the runs without a
+# plugin is unchanged.
+
+
+@intrinsic
+def _call_plugin_ptr(typingctx, addr, which, t, xm, vm, xc, vc, qptr):
+    """Call the plugin at address ``addr`` (int64) with its parameters at ``qptr`` (int64); a cfunc does
+    not unwind (nounwind)."""
+    sig = types.float64(types.int64, types.int64, types.float64, types.float64, types.float64, types.float64,
+                        types.float64, types.int64)
+
+    def codegen(context, builder, signature, args):
+        d = ir.DoubleType()
+        fnty = ir.FunctionType(d, [ir.IntType(64), d, d, d, d, d, d.as_pointer()])
+        fn = builder.inttoptr(args[0], fnty.as_pointer())
+        q = builder.inttoptr(args[7], d.as_pointer())
+        return builder.call(fn, list(args[1:7]) + [q], attrs=("nounwind",))
+
+    return sig, codegen
+
+
+@intrinsic
+def _data_ptr(typingctx, arr):
+    """Return the address (int64) of a contiguous array's first element, without touching its refcount."""
+    sig = types.int64(arr)
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, value=args[0])
+        return builder.ptrtoint(ary.data, ir.IntType(64))
+
+    return sig, codegen
+
+
+@njit(cache=True)
+def plugin_force(pq, pfail, t, xr, vr, Xc, Vc):
+    """Return (F_m, F_c) [N], the user plugin force on the magnet and the shell at time t [s] since the
+    run's start and state (x_r, v_r, X_c, V_c) [m, m/s]; pq: [address, parameters...] (a copy of the row's
+    plugin slots from I_PLUG_FN). A plugin that fails sets pfail[0] = 1 (the run stops with
+    STATUS_PLUGIN) and counts as zero force."""
+    addr = np.int64(pq[0])
+    q = _data_ptr(pq) + 8 * (I_PLUG_P0 - I_PLUG_FN)
+    Fm = _call_plugin_ptr(addr, 0, t, Xc + xr, Vc + vr, Xc, Vc, q)
+    Fc = _call_plugin_ptr(addr, 1, t, Xc + xr, Vc + vr, Xc, Vc, q)
+    if not (math.isfinite(Fm) and math.isfinite(Fc)):
+        pfail[0] = 1.0
+        return 0.0, 0.0
+    return Fm, Fc
+
+
+@njit(cache=True)
+def plugin_stick_terms(p, pq, pfail, t, contact, xr, vr, Xc, fe):
+    """Return (F_m, F_c, dF_c/dt) [N, N, N/s] of the plugin force on a shell at rest (V_c = 0) for the stick
+    test of :func:`decide_shell`; the rate by a central difference over 1e-7 of a drive period along the
+    stuck motion (X_c fixed, x_r'' from the magnet's equation)."""
+    Fm, Fc = plugin_force(pq, pfail, t, xr, vr, Xc, 0.0)
+    K, C, F0 = contact_terms(p, contact)
+    ar = (fe - (K * xr + C * vr + F0) + Fm) / p[I_MM]
+    dt = 1e-7 / p[I_F]
+    _, Fp = plugin_force(pq, pfail, t + dt, xr + dt * vr, vr + dt * ar, Xc, 0.0)
+    _, Fn = plugin_force(pq, pfail, t - dt, xr - dt * vr, vr - dt * ar, Xc, 0.0)
+    return Fm, Fc, (Fp - Fn) / (2.0 * dt)
+
+
+@njit(cache=True)
+def held_rhs(p, contact, s, fe_level, y, dy, Fm):
+    """Right-hand side (as :func:`rk_rhs`) of a shell held on a rigid wall with a plugin force: V_c = 0
+    while |F_i + F_c| stays inside the friction cone (the breakaway is an event of
+    :func:`seg_event_value`); only the magnet moves, M_m x_r'' = F_e - F_i + F_m. y[9] integrates the
+    plugin's power F_m V_m."""
+    K, C, F0 = contact_terms(p, contact)
+    fe = drive_force(p, s, fe_level)
+    Fi = K * y[0] + C * y[1] + F0
+    dy[0] = y[1]
+    dy[1] = (fe - Fi + Fm) / p[I_MM]
+    dy[2] = 0.0
+    dy[3] = 0.0
+    dy[4] = fe * y[1]
+    dy[5] = p[I_C] * y[1] * y[1]
+    dy[6] = (C - p[I_C]) * y[1] * y[1]
+    dy[7] = 0.0
+    dy[8] = 0.0
+    dy[9] = Fm * y[1]
+
+
+@njit(cache=True)
+def seg_rhs(p, contact, sgn, held, s, t0, fe_level, y, dy, pq, pfail):
+    """Right-hand side of the adaptive segment with a user plugin force, at time s within the period
+    starting at t0 [s]: :func:`rk_rhs` plus F_m on the magnet and F_c on the shell, their power
+    F_m V_m + F_c V_c in y[9]; held: a shell stuck on a rigid wall (:func:`held_rhs`)."""
+    if held:
+        Fm, _ = plugin_force(pq, pfail, t0 + s, y[0], y[1], y[3], 0.0)
+        held_rhs(p, contact, s, fe_level, y, dy, Fm)
+        return
+    rk_rhs(p, contact, sgn, s, fe_level, y, dy)
+    Fm, Fc = plugin_force(pq, pfail, t0 + s, y[0], y[1], y[3], y[2])
+    dy[1] += Fm / p[I_MM] - Fc / p[I_MC]
+    dy[2] += Fc / p[I_MC]
+    dy[9] = Fm * (y[2] + y[1]) + Fc * y[2]
+
+
+@njit(cache=True)
+def seg_event_value(p, contact, sgn, held, vlo, vhi, j, y, t, pq, pfail):
+    """Inside-positive event functions of an adaptive segment at time t [s] since the run's start:
+    :func:`rk_event_value`, or for a shell held with a plugin force its stick test (eq 21 with the plugin's
+    force on the shell): j = 2 P_b - (F_i + F_c), j = 3 P_b + (F_i + F_c), P_b tilt-scaled; 1 when fixed."""
+    if held and j >= 2:
+        if p[I_PB] == np.inf:
+            return 1.0
+        _, Fc = plugin_force(pq, pfail, t, y[0], y[1], y[3], 0.0)
+        K, C, F0 = contact_terms(p, contact)
+        F = K * y[0] + C * y[1] + F0 + Fc
+        Pb = p[I_PB] * tilt_factor(p, y[0])
+        return Pb - F if j == 2 else Pb + F
+    return rk_event_value(p, contact, sgn, vlo, vhi, j, y)
 
 
 # ---------------------------------------------------------------------------
@@ -1713,7 +1863,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     rec_events = ev_cap != 0
     events = np.zeros((ev_cap if ev_cap > 0 else 64, 2))
     periods = np.zeros((max(n_record, 0), N_PERIOD_COLS))
-    energy = np.zeros(6)
+    energy = np.zeros(N_ENERGY)
     final = np.zeros(6)
 
     coef = np.zeros((N_ROWS, NB))
@@ -1763,6 +1913,11 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     rc = np.zeros((8, NY))
     KD = np.zeros((DOP_NK, NY))
     yd = np.zeros(NY)
+    # user plugin force: the row's plugin slots (a contiguous copy the plugin reads through a pointer)
+    # and the failure latch
+    plug = p[I_PLUG] > 0.5
+    pq = p[I_PLUG_FN:].copy()  # [address, n, parameters]: contiguous, read by the plugin through a pointer
+    pfail = np.zeros(1)
 
     xr = state0[0]
     vr = state0[1]
@@ -1774,11 +1929,21 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     compliant = p[I_KS] > 0.0
     dsub = 0.0  # presliding spring extension X_c - X_p (substrate compliance), relaxed at the start
     if compliant:
-        shell = decide_patch(p, contact, xr, vr, Vc, dsub, fe0)
+        Fc0 = 0.0
+        if plug:
+            _, Fc0 = plugin_force(pq, pfail, 0.0, xr, vr, Xc, Vc)
+        shell = decide_patch(p, contact, xr, vr, Vc, dsub, fe0, Fc0)
+        if pfail[0] != 0.0:
+            return STATUS_PLUGIN, 0.0, samples, 0, events, 0, periods, energy, final
         if shell < 0:
             return STATUS_ILLPOSED, 0.0, samples, 0, events, 0, periods, energy, final
     elif Vc == 0.0:
-        shell = decide_shell(p, contact, xr, vr, fe0)
+        Fm0, Fc0, dFc0 = 0.0, 0.0, 0.0
+        if plug:
+            Fm0, Fc0, dFc0 = plugin_stick_terms(p, pq, pfail, 0.0, contact, xr, vr, Xc, fe0)
+        shell = decide_shell(p, contact, xr, vr, fe0, Fm0, Fc0, dFc0)
+        if pfail[0] != 0.0:
+            return STATUS_PLUGIN, 0.0, samples, 0, events, 0, periods, energy, final
         if shell < 0:
             return STATUS_ILLPOSED, 0.0, samples, 0, events, 0, periods, energy, final
     else:
@@ -1839,11 +2004,12 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
         # which path: the base closed form (one modal slot), a general linear mode (effects: drag,
         # tilt, substrate compliance; eigen-decomposition), or the adaptive segment (speed law above
         # V_min, literal law, or a general mode whose eigenvectors are nearly defective)
-        lin_base = shell == STICK or ((shell == SLIP_POS or shell == SLIP_NEG) and not eff_slip)
+        # (a user plugin force makes every mode nonlinear: all go through the adaptive segment)
+        lin_base = not plug and (shell == STICK or ((shell == SLIP_POS or shell == SLIP_NEG) and not eff_slip))
         lin_gen = False
         gmode = GM_SLIP
         sgm = 0.0
-        if not lin_base and exact_general:
+        if not lin_base and exact_general and not plug:
             if shell == SLIP_POS or shell == SLIP_NEG:
                 gmode = GM_SLIP
                 sgm = 1.0 if shell == SLIP_POS else -1.0
@@ -2144,6 +2310,12 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
         else:
             # ---------------- adaptive segment: speed-dependent law above V_min (DOP853, dense output)
             sg = 1.0 if (shell == FAST_POS or shell == SLIP_POS) else -1.0
+            # a shell stuck on a rigid wall comes here only with a plugin force: it is held (V_c = 0).
+            # With a plugin the right-hand side and events are seg_rhs / seg_event_value; without, rk_rhs /
+            # rk_event_value are called directly: a plugin call inside them keeps LLVM from inlining
+            # them here (measured: the speed-law slips 40 % slower), so the branch sits at the call sites.
+            held = shell == STICK
+            t0 = period * T
             # a slip (not fast) mode here is a general linear mode with nearly defective eigenvectors:
             # its events are the slip's end (V_c = 0) and V_min
             rk_slow = shell == SLIP_POS or shell == SLIP_NEG
@@ -2169,7 +2341,10 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             y[8] = dsub
             tau = 0.0
             hh = hmax * 0.1
-            rk_rhs(p, contact, sg, s, fe_level, y, k1)
+            if plug:
+                seg_rhs(p, contact, sg, held, s, t0, fe_level, y, k1, pq, pfail)
+            else:
+                rk_rhs(p, contact, sg, s, fe_level, y, k1)
             atol_x = rtol * p[I_XS]
             atol_v = rtol * p[I_VS]
             nsteps = 0
@@ -2189,7 +2364,11 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                     break
                 hh = min(hh, hmax, tau_end - tau)
                 sa = s + tau
-                dop853_step(p, contact, sg, sa, hh, fe_level, y, k1, KD, yt, y1, k7)
+                dop853_step(p, contact, sg, sa, hh, fe_level, y, k1, KD, yt, y1, k7, plug, held, t0, pq, pfail)
+                if pfail[0] != 0.0:
+                    status = STATUS_PLUGIN
+                    status_t = t0 + sa
+                    break
                 err = dop853_error(KD, hh, y, y1, rtol, atol_x, atol_v)
                 if err > 1.0:
                     hh *= max(0.2, 0.9 * err ** -RK_ORDER_EXP)
@@ -2201,7 +2380,10 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                 th_ev = 2.0
                 e_ev = -1
                 for j in range(4):
-                    g1 = rk_event_value(p, contact, sg, vlo, vhi, j, y1)
+                    if plug:
+                        g1 = seg_event_value(p, contact, sg, held, vlo, vhi, j, y1, t0 + sa + hh, pq, pfail)
+                    else:
+                        g1 = rk_event_value(p, contact, sg, vlo, vhi, j, y1)
                     lo = 0.0
                     hi = -1.0
                     if g1 < 0.0:
@@ -2212,7 +2394,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                         dsb = k7[0] if ((contact == 0 and j == 1) or contact == 1) else -k7[0]
                         if dsa < 0.0 and dsb > 0.0:
                             if not rc_ok:
-                                dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc)
+                                dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail)
                                 rc_ok = True
                             a_ = 0.0
                             b_ = 1.0
@@ -2232,14 +2414,19 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                                 hi = 0.5 * (a_ + b_)
                     if hi > 0.0:
                         if not rc_ok:
-                            dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc)
+                            dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail)
                             rc_ok = True
                         a_ = lo
                         b_ = hi
                         for _ in range(80):
                             mth = 0.5 * (a_ + b_)
                             dense_eval(rc, mth, yd)
-                            if rk_event_value(p, contact, sg, vlo, vhi, j, yd) >= 0.0:
+                            if plug:
+                                gmid = seg_event_value(p, contact, sg, held, vlo, vhi, j, yd, t0 + sa + mth * hh,
+                                                       pq, pfail)
+                            else:
+                                gmid = rk_event_value(p, contact, sg, vlo, vhi, j, yd)
+                            if gmid >= 0.0:
                                 a_ = mth
                             else:
                                 b_ = mth
@@ -2257,7 +2444,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                     dFb = K * k7[0] + Cd * k7[1]
                     if dFa * dFb < 0.0:
                         if not rc_ok:
-                            dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc)
+                            dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail)
                             rc_ok = True
                         a_ = 0.0
                         b_ = th_stop
@@ -2293,7 +2480,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                         if th < 0.0:
                             th = 0.0
                         if not rc_ok:
-                            dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc)
+                            dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail)
                             rc_ok = True
                         dense_eval(rc, th, yd)
                         row = samples[j_sample]
@@ -2304,14 +2491,16 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                         row[S_VC] = yd[2]
                         row[S_XR] = yd[0]
                         row[S_CONTACT] = contact
-                        row[S_STICK] = 1.0 if shell == PATCH_STICK else 0.0
+                        row[S_STICK] = 1.0 if seg_stick else 0.0
                         row[S_FI] = K * yd[0] + Cd * yd[1] + F0
                         j_sample += 1
                 if e_ev >= 0:
                     tau += th_stop * hh
                     for i in range(NY):
                         y[i] = y1[i]
-                    if compliant and e_ev >= 2:
+                    if held and e_ev >= 2:
+                        ev = EV_BREAK_POS if e_ev == 2 else EV_BREAK_NEG
+                    elif compliant and e_ev >= 2:
                         if sg == 0.0:
                             ev = EV_BREAK_POS if e_ev == 2 else EV_BREAK_NEG
                         else:
@@ -2351,6 +2540,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                 energy[E_DAMP] += y[5]
                 energy[E_CONTACT] += y[6]
                 energy[E_FRIC] += y[7]
+                energy[E_PLUGIN] += y[9]
 
         # ---------------- bookkeeping of the segment
         if recording and seg_stick:
@@ -2389,21 +2579,28 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             kind = K_BACK_OFF
         new_shell = shell
         fe_now = drive_force(p, s, fe_level)
+        # the plugin force on a shell at rest, counted in the stick test (zeros without a plugin)
+        pFm, pFc, pdFc = 0.0, 0.0, 0.0
+        if plug and ev != EV_NONE:
+            if compliant:
+                _, pFc = plugin_force(pq, pfail, t_glob, xr, vr, Xc, Vc)
+            else:
+                pFm, pFc, pdFc = plugin_stick_terms(p, pq, pfail, t_glob, contact, xr, vr, Xc, fe_now)
         if compliant:
             if ev == EV_BREAK_POS or ev == EV_BREAK_NEG:
-                new_shell = decide_patch(p, contact, xr, vr, Vc, dsub, fe_now)
+                new_shell = decide_patch(p, contact, xr, vr, Vc, dsub, fe_now, pFc)
             elif ev == EV_SLIP_END:
                 # the patch stops with its force at the kinetic level (<= breakaway): it sticks; a force
                 # that keeps rising past the breakaway is a break event of the stuck patch
                 new_shell = PATCH_STICK
         elif ev == EV_FRONT_ON or ev == EV_BACK_ON or ev == EV_FRONT_OFF or ev == EV_BACK_OFF:
             if shell == STICK:
-                new_shell = decide_shell(p, contact, xr, vr, fe_now)
+                new_shell = decide_shell(p, contact, xr, vr, fe_now, pFm, pFc, pdFc)
         elif ev == EV_BREAK_POS or ev == EV_BREAK_NEG:
-            new_shell = decide_shell(p, contact, xr, vr, fe_now)
+            new_shell = decide_shell(p, contact, xr, vr, fe_now, pFm, pFc, pdFc)
         elif ev == EV_SLIP_END:
             Vc = 0.0
-            new_shell = decide_shell(p, contact, xr, vr, fe_now)
+            new_shell = decide_shell(p, contact, xr, vr, fe_now, pFm, pFc, pdFc)
         elif ev == EV_FAST_ON:
             new_shell = FAST_POS if shell == SLIP_POS else FAST_NEG
         elif ev == EV_FAST_OFF:
@@ -2411,7 +2608,11 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                 new_shell = SLIP_POS if shell == FAST_POS else SLIP_NEG
             else:
                 Vc = 0.0
-                new_shell = decide_shell(p, contact, xr, vr, fe_now)
+                new_shell = decide_shell(p, contact, xr, vr, fe_now, pFm, pFc, pdFc)
+        if pfail[0] != 0.0:
+            status = STATUS_PLUGIN
+            status_t = t_glob
+            break
         if new_shell < 0:
             status = STATUS_ILLPOSED
             status_t = t_glob
@@ -2509,12 +2710,12 @@ def run_many(P, opts, states0, n_transient, n_record):
     """Run many independent points in parallel (fixed initial conditions, no samples/events).
 
     P: (n, N_PARAMS); states0: (n, 4). Returns (status (n,), periods (n, n_record, cols),
-    energy (n, 6), final (n, 6)).
+    energy (n, N_ENERGY), final (n, 6)).
     """
     n = P.shape[0]
     status = np.zeros(n, dtype=np.int64)
     periods = np.zeros((n, n_record, N_PERIOD_COLS))
-    energy = np.zeros((n, 6))
+    energy = np.zeros((n, N_ENERGY))
     final = np.zeros((n, 6))
     for i in prange(n):
         st, st_t, sm, ns, ev, nev, per, en, fin = run_core(P[i], opts, states0[i], n_transient, n_record,

@@ -74,6 +74,9 @@ class CapsuleModel:
     tilt_kappa: float = 0.0
     compliance_m_N: float = 0.0
     substrate_damping_Ns_m: float = 0.0
+    #: user plugin forces (role "force", :mod:`capsule_cli.dynamics.plugin_force`): ((kind, effect name,
+    #: its parameters in SI in declaration order), ...); their forces add
+    plugin_forces: tuple = ()
 
     @property
     def back_active(self) -> bool:
@@ -151,19 +154,25 @@ def load_model(name: str = "prototype_one_sided") -> tuple[CapsuleModel, float |
         if mf.base not in BASE_PARAM_SETS:
             raise InputError(f"{name}: base '{mf.base}' is not a dynamics base model "
                              f"({', '.join(BASE_PARAM_SETS)})")
-        from .system import resolve_params
+        from .system import plugin_roles, resolve_params
         given = {key: float(val if isinstance(val, (int, float)) else val.value) for key, val in mf.params.items()}
         # the base's parameter set, the effects' start values, the file's values (effect terms as data)
         params = resolve_params(mf.base, given, tuple(mf.effects), where=f"{name}: ")
+        _, forces = plugin_roles(tuple(mf.effects), params, where=f"{name}: ")
+        # plugin parameters live in plugin_forces (and drive transforms in the system), not in the model
+        params = {k: v for k, v in params.items() if k in MODEL_PARAM_NAMES or k == "Pf_N"}
         where = str(name)
         double_sided = mf.base == "double_sided" or "secondary_constraint" in mf.effects
     else:
         params = load_param_set(name)
         where = str(name)
         double_sided = None
+        forces = ()
     pf = params.pop("Pf_N", None)
     model = CapsuleModel.from_params({**params, **({} if pf is None else {"Pf_N": pf})}, double_sided=double_sided,
                                      where=where)
+    if forces:
+        model = replace(model, plugin_forces=forces)
     return model, (None if pf is None else float(pf))
 
 
@@ -392,6 +401,9 @@ def pack_params(model: CapsuleModel, drive: Drive, friction: Friction) -> np.nda
     p[E.I_XS] = xs
     p[E.I_FS] = fs
     p[E.I_VS] = xs * max(om, math.sqrt(model.spring_N_m / mu))
+    if model.plugin_forces:
+        from .plugin_force import pack_forces
+        pack_forces(p, model.plugin_forces)
     return p
 
 

@@ -42,8 +42,10 @@ class RunResult:
         return float(self.periods["displacement_mm"].mean() * self.frequency_Hz)
 
 
-def check_status(status: int, t: float, friction: Friction | None = None, where: str = "") -> None:
-    """Raise a clear error for a non-zero engine status."""
+def check_status(status: int, t: float, friction: Friction | None = None, where: str = "",
+                 plugins: tuple = ()) -> None:
+    """Raise a clear error for a non-zero engine status (plugins: the model's ``plugin_forces``, named in
+    the error of a failing plugin force)."""
     if status == E.STATUS_OK:
         return
     pre = f"{where}: " if where else ""
@@ -59,6 +61,11 @@ def check_status(status: int, t: float, friction: Friction | None = None, where:
     if status == E.STATUS_ZENO:
         raise DynamicsError(f"{pre}events accumulate at t = {t:.9g} s (Zeno: more than the allowed number "
                             "of zero-length segments in a row); the run was stopped")
+    if status == E.STATUS_PLUGIN:
+        names = ", ".join(f"'{pf[1]}'" for pf in plugins) or "a plugin force"
+        raise DynamicsError(f"{pre}plugin force {names} raised or returned a non-finite force (NaN or inf) at "
+                            f"t = {t:.9g} s; check its formula there (its effect's parameters, e.g. a distance "
+                            "that reaches zero)")
     if status == E.STATUS_RKFAIL:
         raise EngineFailure(f"{pre}speed-dependent slip integration exceeded its step budget at t = {t:.9g} s")
     if status == E.STATUS_EVCAP:
@@ -117,12 +124,14 @@ def event_names(kinds: np.ndarray) -> np.ndarray:
 
 def energy_record(energy: np.ndarray, computed: bool) -> dict:
     """The energy balance of a run [J] from the engine's energy slots."""
-    work = energy[E.E_DRIVE]
+    # drive work + plugin-force work = dissipation + change in stored energy
+    work = energy[E.E_DRIVE] + energy[E.E_PLUGIN]
     diss = energy[E.E_DAMP] + energy[E.E_CONTACT] + energy[E.E_FRIC]
     dstore = energy[E.E_END] - energy[E.E_START]
-    scale = max(abs(work), abs(diss), abs(dstore), 1e-300)
+    scale = max(abs(energy[E.E_DRIVE]), abs(energy[E.E_PLUGIN]), abs(diss), abs(dstore), 1e-300)
     return {
-        "drive_work_J": float(work),
+        "drive_work_J": float(energy[E.E_DRIVE]),
+        "plugin_work_J": float(energy[E.E_PLUGIN]),
         "spring_damping_J": float(energy[E.E_DAMP]),
         "contact_damping_J": float(energy[E.E_CONTACT]),
         "friction_J": float(energy[E.E_FRIC]),
@@ -173,7 +182,7 @@ def run_arrays(model: CapsuleModel, drive: Drive, friction: Friction, periods: i
         raise InputError(f"{n_samples} trajectory samples requested; lower --sample-rate-Hz or --periods")
     st, st_t, samples, ns, ev, nev, per, energy, final = E.run_core(
         p, opts, s0, int(transient_periods), int(periods), dt, n_samples, -1 if record_events else 0)
-    check_status(int(st), float(st_t), friction, where)
+    check_status(int(st), float(st_t), friction, where, model.plugin_forces)
     return RawRun(samples=samples[:ns], event_times_s=ev[:nev, 0], event_kinds=ev[:nev, 1], per=per,
                   energy=energy_record(energy, (options or EngineOptions()).energy), final_state=final,
                   frequency_Hz=drive.frequency_Hz, transient_periods=int(transient_periods), params=p)

@@ -121,7 +121,8 @@ def run_sweep(model: CapsuleModel, drive: Drive, friction: Friction, name: str, 
     bad = np.nonzero(st != E.STATUS_OK)[0]
     if bad.size:
         i = int(order[np.argmax(np.isin(order, bad))]) if protocol != "rest" else int(bad[0])
-        check_status(int(st[i]), float("nan"), setups[i][2], f"sweep point {name} = {values[i]:g}")
+        check_status(int(st[i]), float("nan"), setups[i][2], f"sweep point {name} = {values[i]:g}",
+                     setups[i][0].plugin_forces)
     Pd = np.array([s[1].amplitude_N for s in setups])
     f = np.array([s[1].frequency_Hz for s in setups])
     sm = summarize(per, Pd, f)

@@ -133,6 +133,32 @@ def resolve_params(base: str, params: Mapping[str, float], effects: Sequence[str
     return {k: out[k] for k in out if k in known}
 
 
+def plugin_roles(effects: Sequence[str], full: Mapping[str, float], where: str = "") -> tuple[tuple, tuple]:
+    """Return (drive transforms, plugin forces) of the listed effects with their parameters in SI.
+
+    drive transforms: ((effect, {base name: SI value}), ...); plugin forces: ((kind, name, SI values in
+    declaration order), ...), compiled and checked here (:func:`.plugin_force.compile_forces`: a force that
+    does not compile, raises or returns a non-finite value is one InputError line). A plugin effect with
+    another role is an error.
+    """
+    from ..effects.registry import get_effect, si_factor
+
+    transforms, forces = [], []
+    for name in effects:
+        eff = get_effect("progression", name, where)
+        if eff.role == "drive":
+            transforms.append((eff, {prm.key: full[prm.name] * si_factor(prm.name) for prm in eff.params}))
+        elif eff.role == "force":
+            forces.append((eff.kind, eff.name, tuple(full[prm.name] * si_factor(prm.name) for prm in eff.params)))
+        elif eff.origin != "built-in":
+            raise InputError(f"{where}plugin effect '{name}' ({eff.origin}) of a dynamics kind must be a drive "
+                             "transform (register_effect(..., role='drive')) or a force (role='force')")
+    if forces:
+        from .plugin_force import compile_forces
+        compile_forces(forces, where)
+    return tuple(transforms), tuple(forces)
+
+
 def build_system(base: str, params: Mapping[str, float], effects: Sequence[str] = (), where: str = "") -> DynSystem:
     """Return the dynamics model of ``base`` ('one_sided' | 'double_sided') with ``effects``.
 
@@ -142,25 +168,18 @@ def build_system(base: str, params: Mapping[str, float], effects: Sequence[str] 
     ``configs/params/prototype_*.yaml`` and the effects' start values. effects: registered
     dynamics effect names (:mod:`capsule_cli.effects.dynamics`, or plugins).
     """
-    from ..effects.registry import get_effect, si_factor
-
     where = f"{where}: " if where and not where.endswith(": ") else where
     effects = tuple(effects)
     full = resolve_params(base, params, effects, where)
     pf = float(full.pop("Pf_N"))
     if not pf > 0:
         raise InputError(f"{where}Pf_N must be > 0 N (inf: shell fixed), got {pf}")
-    transforms = []
-    for name in effects:
-        eff = get_effect("progression", name, where)
-        if eff.role == "drive":
-            transforms.append((eff, {prm.key: full[prm.name] * si_factor(prm.name) for prm in eff.params}))
-        elif eff.origin != "built-in":
-            raise InputError(f"{where}plugin effect '{name}' ({eff.origin}) of a dynamics kind must be a drive "
-                             "transform (register_effect(..., role='drive')); plugin forces are not supported yet")
+    transforms, forces = plugin_roles(effects, full, where)
     double = base == "double_sided" or "secondary_constraint" in effects
     engine_params = {k: v for k, v in full.items() if k in MODEL_PARAM_NAMES}
     model = CapsuleModel.from_params(engine_params, double_sided=double, where=where.rstrip(": ") or "params")
+    if forces:
+        model = replace(model, plugin_forces=forces)
     return DynSystem(base=base, effects=effects, params={**full, "Pf_N": pf}, model=model, Pf_N=pf,
                      drive_transforms=tuple(transforms))
 
@@ -262,7 +281,8 @@ def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmo
     if protocol.start == "rest":
         st, per, _, _ = E.run_many(P, opts, np.zeros((n, 4)), ntr, nrec)
         for i in range(n):
-            check_status(int(st[i]), float("nan"), fr, f"condition f = {f[i]:g} Hz, Pd = {Pd[i]:g} N")
+            check_status(int(st[i]), float("nan"), fr, f"condition f = {f[i]:g} Hz, Pd = {Pd[i]:g} N",
+                         system.model.plugin_forces)
             results[i] = per[i]
     else:
         groups: dict[tuple[float, float], list[int]] = {}
@@ -273,7 +293,8 @@ def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmo
             state = np.zeros(4)
             for i in idx:
                 st, st_t, _, _, _, _, per, _, fin = E.run_core(P[i], opts, state, ntr, nrec, 1.0, 0, 0)
-                check_status(int(st), float(st_t), fr, f"condition f = {f[i]:g} Hz, Pd = {Pd[i]:g} N")
+                check_status(int(st), float(st_t), fr, f"condition f = {f[i]:g} Hz, Pd = {Pd[i]:g} N",
+                             system.model.plugin_forces)
                 results[i] = per
                 state = np.array([fin[0], fin[1], 0.0, fin[3]])
     return pd.DataFrame([summarize_periods(results[i], float(f[i])) for i in range(n)])
@@ -295,7 +316,8 @@ def trajectory(system: DynSystem, f_Hz: float, Pd_N: float, time_s, duty=None, w
     n_periods = int(math.floor((ts[-1] if ts.size else 0.0) * d.frequency_Hz)) + 1
     opts = replace(options or EngineOptions(), energy=False).pack()
     st, st_t, sm, ns, *_ = E.run_core_at(system.params_row(d), opts, np.zeros(4), 0, n_periods, ts, 0)
-    check_status(int(st), float(st_t), system.friction(), f"trajectory f = {d.frequency_Hz:g} Hz")
+    check_status(int(st), float(st_t), system.friction(), f"trajectory f = {d.frequency_Hz:g} Hz",
+                 system.model.plugin_forces)
     if ns != ts.size:
         raise RuntimeError(f"trajectory: {ns} of {ts.size} samples written")
     cap = np.empty(t.size)

@@ -43,10 +43,27 @@ entry-point group ``capsule_cli.effects`` that registers effects::
 
 From then on the effect is listed by ``effects list``, usable in model files
 and ``synth``, fitted by ``compare`` and tried by ``diagnose``.
+
+Dynamics plugins (kinds ``progression`` and ``trajectory``) change the equations of motion and come in
+two roles: ``role="drive"``, a per-row drive transform ``apply(f_Hz, Pd_N, duty, p) -> (f_Hz, Pd_N,
+duty)`` (p: dict of SI values by base name); and ``role="force"``, an extra force of state and time::
+
+    @register_effect(name="magnet_attraction", kind="progression", role="force",
+                     params=(Param("attraction_mN", 2.0, (0.0, 100.0), off=0.0),
+                             Param("range_mm", 0.3, (0.01, 10.0), off=0.3)),
+                     description="...", source="...")
+    def magnet_attraction(t, x_m, v_m, x_c, v_c, p):     # SI: s, m, m/s; p: float64 array, SI
+        F = p[0] * math.exp(-(x_c + 1.6e-3 - x_m) / p[1])
+        return F, -F                                      # on the magnet, on the shell [N]
+
+compiled with numba (nopython), checked when the system is built and integrated by the engine's
+adaptive segment, counted in the stick test and the energy balance
+(:mod:`capsule_cli.dynamics.plugin_force` documents the signature and the checks).
 """
 from __future__ import annotations
 
 import difflib
+import hashlib
 import importlib.util
 import sys
 import traceback
@@ -133,7 +150,10 @@ class Effect:
     origin: str = "built-in"
     #: dynamics kinds only: "drive" marks a per-row drive transform
     #: ``apply(f_Hz, Pd_N, duty, p) -> (f_Hz, Pd_N, duty)`` (p: SI values by base name), applied to every
-    #: condition before it is simulated (capsule_cli.dynamics.system); "" for the others
+    #: condition before it is simulated (capsule_cli.dynamics.system); "force" an extra force of state and
+    #: time ``apply(t, x_m, v_m, x_c, v_c, p) -> (F_on_magnet_N, F_on_shell_N)`` (SI; p: float64 array of
+    #: the parameters in SI in declaration order), compiled with numba and integrated by the engine
+    #: (capsule_cli.dynamics.plugin_force); "" for the others
     role: str = ""
     #: whether a model may hold it more than once (a physical series: a second Maxwell arm); the k-th
     #: instance is the effect ``<name>_<k>`` with parameters ``<param>_<k>`` (see :func:`effect_instance`)
@@ -237,12 +257,13 @@ def _add_effect(eff: Effect) -> None:
     if eff.origin == "built-in" and _CURRENT_ORIGIN[-1] != "built-in":
         eff = Effect(**{**eff.__dict__, "origin": _CURRENT_ORIGIN[-1]})
     _check_params(f"effect '{eff.name}'", eff.params, True)
-    if eff.role not in ("", "drive"):
-        raise ValueError(f"effect '{eff.name}': unknown role '{eff.role}' (\"drive\" for a drive transform)")
+    if eff.role not in ("", "drive", "force"):
+        raise ValueError(f"effect '{eff.name}': unknown role '{eff.role}' (\"drive\" for a drive transform, "
+                         "\"force\" for an extra force)")
     if eff.role and eff.repeatable:
-        raise ValueError(f"effect '{eff.name}': a drive transform cannot be repeatable")
-    if eff.role == "drive" and eff.kind not in ("progression", "trajectory"):
-        raise ValueError(f"effect '{eff.name}': a drive transform is a progression or trajectory effect")
+        raise ValueError(f"effect '{eff.name}': a drive transform or force cannot be repeatable")
+    if eff.role and eff.kind not in ("progression", "trajectory"):
+        raise ValueError(f"effect '{eff.name}': a drive transform or force is a progression or trajectory effect")
     for cov in eff.covariates:
         if split_unit(cov)[1] is None:
             raise ValueError(f"effect '{eff.name}': covariate '{cov}' needs a unit suffix (e.g. 'temperature_C')")
@@ -402,7 +423,8 @@ def get_base(kind: str, name: str, where: str = "") -> BaseModel:
 
 
 def _load_file(path: Path) -> None:
-    mod_name = f"capsule_cli_plugin_{abs(hash(str(path.resolve())))}"
+    # a name stable across processes (numba's disk cache of a plugin force refers to its module by name)
+    mod_name = f"capsule_cli_plugin_{hashlib.sha1(str(path.resolve()).encode()).hexdigest()[:16]}"
     spec = importlib.util.spec_from_file_location(mod_name, path)
     if spec is None or spec.loader is None:
         raise InputError(f"{path}: cannot be loaded as a Python plugin (use a .py file)")

@@ -273,7 +273,8 @@ def magnify_arrays(model: CapsuleModel, Pd_values, f_values, friction: Friction,
     bad = np.argwhere(st != E.STATUS_OK)
     if bad.size:
         i, j = (int(x) for x in bad[0])
-        check_status(int(st[i, j]), float("nan"), friction, f"magnify point P_d = {Pd[i]:g} N, f = {f[j]:g} Hz")
+        check_status(int(st[i, j]), float("nan"), friction, f"magnify point P_d = {Pd[i]:g} N, f = {f[j]:g} Hz",
+                     model.plugin_forces)
     PdG, fG = np.meshgrid(Pd, f, indexing="ij")
     sm = summarize(per.reshape(-1, *per.shape[2:]), PdG.ravel(), fG.ravel())
     return {k: sm[k].reshape(Pd.size, f.size) for k in ("Af", "max_Fi_N", "impacts_per_period", "velocity_mm_s")}
