@@ -102,16 +102,18 @@ class Budget:
 
 
 #: named budgets (CLI --effort): full (default) and quick (smoke runs, a first look, the CI tests).
-#: quick: fewer evaluations per start, fold refit and bootstrap resample; a Sobol scan of 8 points per
-#: parameter (with 4, on a ten-condition design one start in three stopped in a wrong minimum for the tilt
-#: and the secondary constraint: kappa at its bound, held-out error 100x the noise).
+#: quick: a smaller Sobol scan (4 points per parameter), fewer evaluations per start, fold refit and bootstrap
+#: resample. (A scan of 8 points per parameter named a hidden tilt or secondary constraint on ten conditions
+#: in 10 of 10 diagnoses at seeds 2-3 against 6 of 10 with 4, but stopped a six-run trajectory fit in a worse
+#: minimum, in-sample RMSE 1.6x the noise against 1.2x: the multi-start strategy, not the scan size, is the
+#: weak point; see the issue 12 closing note.)
 #: Calibration runs the engine's adaptive segments (the speed laws above V_min) at rk_rtol 1e-9 (full) or
 #: 1e-8 (quick): on the 40-condition design (configs/designs/progression_grid.csv, hidden speed law) the
 #: average velocities move by <= 1.4e-5 mm/s (1e-9) and <= 2.6e-4 mm/s (1e-8) against the default 1e-11,
 #: three orders below any velocity noise a progression measurement reaches, for 2x and 3x less engine time.
 #: Synth always runs at the engine's default.
 EFFORTS = {"full": Budget(rk_rtol=1e-9),
-           "quick": Budget(scan_per_param=8, starts=2, evals_per_param=15, fold_evals_per_param=5, bootstrap=5,
+           "quick": Budget(scan_per_param=4, starts=2, evals_per_param=15, fold_evals_per_param=5, bootstrap=5,
                            polish_evals_per_param=10, rk_rtol=1e-8)}
 
 
