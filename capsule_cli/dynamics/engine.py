@@ -1441,7 +1441,9 @@ def dop853_error(K, h, y, y1, rtol, atol_x, atol_v):
 def dop853_dense(p, contact, sg, s, h, fe_level, y, y1, K, yt, rc, plug, held, t0, pq, pfail):
     """Continuous extension of an accepted DOP853 step: three more stages, then rc[0] = y and
     rc[1..7] the coefficients evaluated by :func:`dense_eval` (7th order in theta); plug, held, t0,
-    pq, pfail as in :func:`dop853_step`."""
+    pq, pfail as in :func:`dop853_step`. The stage loop is a deliberate copy of dop853_step's: one
+    shared stage function (not inlined by numba) made the speed-law path 33 % slower (405 -> 540 us per
+    eq 22 period, measured back to back)."""
     for i in range(13, 16):
         for q in range(NY):
             yt[q] = 0.0
