@@ -69,3 +69,17 @@ def test_failing_drive_transform_is_one_line_input_error(plugin, name, msg):
     with pytest.raises(InputError, match=msg) as exc:
         progression(s, 25.0, 0.15, protocol=Protocol("rest", 2, 2))
     assert "\n" not in str(exc.value)
+
+
+def test_simulate_refuses_a_model_file_with_a_drive_transform(plugin, tmp_path, capsys):
+    """simulate / sweep / magnify take the drive as given: a drive transform in the model file is refused with
+    one line and exit 2, never silently dropped (the transform acts on a data table's rows)."""
+    from capsule_cli.cli import main
+
+    mf = tmp_path / "m.yaml"
+    mf.write_text("kind: progression\nbase: one_sided\neffects: [coil_gain_t9]\nparams: {gain: 2.0}\n")
+    rc = main(["simulate", "--model", str(mf), "--plugins", str(plugin), "--periods", "2", "-o", str(tmp_path / "out")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2, err
+    assert "coil_gain_t9" in err and "drive transform" in err and "\n" not in err
+    assert not (tmp_path / "out").exists()

@@ -158,7 +158,11 @@ def load_model(name: str = "prototype_one_sided") -> tuple[CapsuleModel, float |
         given = {key: float(val if isinstance(val, (int, float)) else val.value) for key, val in mf.params.items()}
         # the base's parameter set, the effects' start values, the file's values (effect terms as data)
         params = resolve_params(mf.base, given, tuple(mf.effects), where=f"{name}: ")
-        _, forces = plugin_roles(tuple(mf.effects), params, where=f"{name}: ")
+        drives, forces = plugin_roles(tuple(mf.effects), params, where=f"{name}: ")
+        if drives:  # applied per data row by synth / compare / diagnose; never silently dropped here
+            raise InputError(f"{name}: plugin drive transform(s) {', '.join(e.name for e, _ in drives)} act on "
+                             "a data table's drive conditions (synth, compare, diagnose); simulate, sweep and "
+                             "magnify take the drive as given: drop them from this model file")
         # plugin parameters live in plugin_forces (and drive transforms in the system), not in the model
         params = {k: v for k, v in params.items() if k in MODEL_PARAM_NAMES or k == "Pf_N"}
         where = str(name)
