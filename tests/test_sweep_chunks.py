@@ -146,7 +146,7 @@ def test_planned_jobs_gathered_equal_the_unchunked_map(tmp_path):
 
 def test_slurm_profile_dry_run_lists_chunked_jobs():
     """`snakemake -n --profile workflow/profiles/slurm` works without a cluster and lists the map jobs
-    of the cost plan and the grouped small jobs."""
+    of the cost plan and the grouped small jobs (--forceall: the same listing after `make study` has run)."""
     import os
     import re
     import subprocess
@@ -157,8 +157,8 @@ def test_slurm_profile_dry_run_lists_chunked_jobs():
 
     repo = Path(__file__).resolve().parents[1]
     snk = Path(sys.executable).with_name("snakemake")
-    r = subprocess.run([str(snk), "-n", "--profile", "workflow/profiles/slurm"], cwd=repo, capture_output=True,
-                       text=True, env={**os.environ, "PYTHONPATH": str(repo)}, timeout=300)
+    r = subprocess.run([str(snk), "-n", "--forceall", "--profile", "workflow/profiles/slurm"], cwd=repo,
+                       capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(repo)}, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
     mg = validate_study_config(read_yaml(repo / "configs/study.yaml")).dynamics.magnify
     plan = plan_magnify_jobs([f"{p:g}" for p in mg.Pf_N] + list(mg.laws), mg.Pd_num, mg.f_num,
