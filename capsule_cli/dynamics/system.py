@@ -256,8 +256,13 @@ def summarize_periods(per: np.ndarray, f_Hz: float) -> dict:
 
 
 def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmonic",
-                protocol: Protocol = Protocol(), options: EngineOptions | None = None) -> pd.DataFrame:
+                protocol: Protocol = Protocol(), options: EngineOptions | None = None,
+                start_offset_m=None) -> pd.DataFrame:
     """Return one row per condition (same order as the inputs) of the steady progression.
+
+    start_offset_m (protocol ``rest`` only): initial magnet-to-shell displacement x_r per condition [m]
+    (scalar or one per condition) instead of exact rest, to estimate a response's spread over
+    starting states (multistable or chaotic conditions); None: exact rest.
 
     Columns: velocity_mm_s (average shell velocity over the recorded periods), impacts_per_period
     (mean), period_number (1..8, 0 = irregular/none found), response_class ('no_impact' |
@@ -279,12 +284,17 @@ def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmo
     fr = system.friction()
     results: list = [None] * n
     if protocol.start == "rest":
-        st, per, _, _ = E.run_many(P, opts, np.zeros((n, 4)), ntr, nrec)
+        states0 = np.zeros((n, 4))
+        if start_offset_m is not None:
+            states0[:, 0] = np.broadcast_to(np.asarray(start_offset_m, float), (n,))
+        st, per, _, _ = E.run_many(P, opts, states0, ntr, nrec)
         for i in range(n):
             check_status(int(st[i]), float("nan"), fr, f"condition f = {f[i]:g} Hz, Pd = {Pd[i]:g} N",
                          system.model.plugin_forces)
             results[i] = per[i]
     else:
+        if start_offset_m is not None:
+            raise InputError("start_offset_m applies to the protocol 'rest' only")
         groups: dict[tuple[float, float], list[int]] = {}
         for i in range(n):
             groups.setdefault((float(Pd[i]), float(D[i])), []).append(i)
