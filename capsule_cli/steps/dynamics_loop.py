@@ -91,8 +91,9 @@ PARALLEL_ABOVE_S = 0.05
 #: displacements x_r [m] besides exact rest. A capsule "at rest" on a bench is not placed better than
 #: 1-10 um (the gap G_1 is 1.6 mm), and an independent simulator's "rest" differs from this engine's
 #: by its own rounding, which chaos amplifies: on the 40-condition design with a hidden secondary
-#: constraint, 11 of 40 conditions moved by 1-135 mm/s between these starts while the window SD of
-#: some of them was 0 (tests/test_dynamics_loop_starts.py).
+#: constraint at G_2 = 0.3 mm, the starts' SD exceeds 1.5 mm/s at 10 of its 20 irregular conditions (up
+#: to 74 mm/s: two attractors 135 mm/s apart) and at 3 of them the window term was below 1 mm/s
+#: (tests/test_dynamics_loop_starts.py).
 START_OFFSETS_M = (-1e-5, -1e-6, 1e-6, 1e-5)
 
 #: Robust first stage of a progression calibration: Cauchy loss c^2 log(1 + (r / c)^2) with
