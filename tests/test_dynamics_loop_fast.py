@@ -43,16 +43,16 @@ def _model(tmp_path, name, effects=(), params=None, kind="progression", protocol
     return build_model(path)
 
 
-def _progression_data(tmp_path, truth, design=DESIGN, seed=1):
-    df = DL.synthesize_progression(truth, design, NOISE, 2, seed)
+def _progression_data(tmp_path, truth, design=DESIGN, seed=1, replicates=2):
+    df = DL.synthesize_progression(truth, design, NOISE, replicates, seed)
     path = tmp_path / f"{truth.name}_synthetic.csv"
     df.to_csv(path, index=False)
     return df, str(path)
 
 
-def _diagnose(tmp_path, truth, seed=1, candidates=CANDIDATES, design=DESIGN):
+def _diagnose(tmp_path, truth, seed=1, candidates=CANDIDATES, design=DESIGN, replicates=2):
     base = _model(tmp_path, "base", params={"Pf_N": FREE_PF})
-    df, path = _progression_data(tmp_path, truth, design, seed)
+    df, path = _progression_data(tmp_path, truth, design, seed, replicates)
     return DL.run_diagnose(base, df, path, tmp_path / "diag", write_model=tmp_path / "new.yaml", k_folds=3,
                            seed=seed, figures=False, budget=QUICK, candidates=candidates)
 
@@ -92,6 +92,42 @@ def test_nothing_missing_gives_a_null_verdict(tmp_path):
     assert v["outcome"] == "nothing_missing" and v["missing_effect"] is None, v["message"]
     assert v["regime"] is None and v["message"].startswith("nothing is missing")
     assert not any(c["passes"] for c in r["candidates"])
+
+
+# --------------------------------------------------------------------------- one speed per condition (no replicates)
+# Differences between neighbouring conditions are not noise (the speed jumps as impacts appear and vanish: on
+# TEN_DESIGN 5-25x the generating SD), so without replicates diagnose takes the noise from the best fit's
+# standardised residuals (steps/dynamics_loop.py: progression_noise) and says so.
+
+
+def test_no_replicates_nothing_missing_noise_from_the_residuals(tmp_path):
+    truth = _model(tmp_path, "truth_null1", params={"Pf_N": 0.02})
+    r = _diagnose(tmp_path, truth, seed=3, design=TEN_DESIGN, replicates=1)
+    assert r["noise"]["method"].startswith("residual SD of the best-fitting model"), r["noise"]["method"]
+    # against the noise actually drawn (this seed's ten draws have SD 1.7 x the generating 0.5 mm/s)
+    data, _ = _progression_data(tmp_path, truth, TEN_DESIGN, 3, 1)
+    clean = DL.synthesize_progression(truth, TEN_DESIGN, 0.0, 1, 3)
+    drawn = float(np.sqrt(np.sum((data["velocity_mm_s"] - clean["velocity_mm_s"]) ** 2) / (len(data) - 1)))
+    assert 0.8 * drawn < r["noise"]["sd"] < 1.2 * drawn, (r["noise"], drawn)
+    assert r["verdict"]["outcome"] == "nothing_missing", r["verdict"]["message"]
+
+
+def test_no_replicates_hidden_effect_named_and_fitted_to_the_noise(tmp_path):
+    truth = _model(tmp_path, "truth_sec1", ["secondary_constraint"], {"Pf_N": 0.02, "gap_back_mm": 0.3})
+    r = _diagnose(tmp_path, truth, seed=1, design=TEN_DESIGN, replicates=1)
+    v = r["verdict"]
+    assert v["outcome"] == "missing_effect" and v["missing_effect"] == "secondary_constraint", v["message"]
+    win = next(c for c in r["candidates"] if c["effect"] == "secondary_constraint")
+    assert win["cv_rmse_not_irregular"] <= 1.5 * NOISE, win["cv_rmse_not_irregular"]
+    assert r["noise"]["sd"] < 1.5 * NOISE, r["noise"]
+
+
+def test_no_replicates_difference_estimate_is_only_a_bound(tmp_path):
+    truth = _model(tmp_path, "truth_null2", params={"Pf_N": 0.02})
+    df, _ = _progression_data(tmp_path, truth, TEN_DESIGN, 3, 1)
+    noise = DL.noise_of(DL.DynBound(truth, df))
+    assert noise["reliable"] is False and "upper bound" in noise["method"]
+    assert noise["sd"] > 3 * NOISE  # what the differences would have claimed
 
 
 # --------------------------------------------------------------------------- a user's plugin, found by its covariate
