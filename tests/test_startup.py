@@ -1,0 +1,47 @@
+"""Start-up work of the commands (issue 10 item 10, issue 13 item 5): what they import and read.
+
+The wall times themselves are benchmarks (benchmarks/diagnose_speed.py, `capsule-cli bench --startup`), not
+asserted here; these tests pin the choices that make them short, and that the faster paths change nothing.
+"""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from capsule_cli.config import _FastStrictLoader, _StrictLoader, read_yaml
+from capsule_cli.errors import InputError
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_diagnose_path_does_not_import_scipy_stats():
+    """The diagnosis of a friction table needs no scipy.stats (its import costs about 0.3 s)."""
+    code = ("import sys; import capsule_cli.steps.diagnose, capsule_cli.fitting, capsule_cli.steps.relax; "
+            "print('scipy.stats' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO)
+    assert out.stdout.strip() == "False"
+
+
+@pytest.mark.parametrize("path", sorted(p.relative_to(REPO).as_posix() for p in (REPO / "configs").rglob("*.yaml")))
+def test_fast_yaml_loader_reads_every_shipped_config_as_the_pure_python_one(path):
+    """libyaml's parser (when PyYAML has it) gives the same content as the pure-Python parser."""
+    text = (REPO / path).read_text(encoding="utf-8")
+    assert yaml.load(text, Loader=_FastStrictLoader) == yaml.load(text, Loader=_StrictLoader)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("kind: friction\nbase: [coulomb\n", "line 3: invalid YAML: expected ',' or ']', but got '<stream end>'"),
+    ("a:\n\t- b\n", "line 2: invalid YAML: found character '\\t' that cannot start any token"),
+    ("a: 1\nb: 2\na: 3\n", "duplicate key 'a' at line 3"),
+])
+def test_yaml_errors_read_as_the_pure_python_parser_words_them(tmp_path, text, message):
+    """A file libyaml rejects is parsed again by the pure-Python parser, whose message names the character."""
+    f = tmp_path / "bad.yaml"
+    f.write_text(text, encoding="utf-8")
+    with pytest.raises(InputError) as err:
+        read_yaml(f)
+    assert str(err.value) == f"{f}: {message}"
