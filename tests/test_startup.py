@@ -45,3 +45,35 @@ def test_yaml_errors_read_as_the_pure_python_parser_words_them(tmp_path, text, m
     with pytest.raises(InputError) as err:
         read_yaml(f)
     assert str(err.value) == f"{f}: {message}"
+
+
+def test_dynamics_kinds_named_in_tables_are_the_engine_loops():
+    """tables.DYNAMICS_KINDS (read without importing the engine) lists the kinds dynamics_loop handles."""
+    from capsule_cli.steps import dynamics_loop
+    from capsule_cli.tables import DYNAMICS_KINDS, MEASUREMENT_KINDS
+
+    assert tuple(DYNAMICS_KINDS) == tuple(dynamics_loop.DYN_KINDS)
+    assert set(DYNAMICS_KINDS) <= set(MEASUREMENT_KINDS)
+
+
+def test_quasi_static_loop_commands_import_neither_the_engine_nor_scipy_stats(tmp_path):
+    """synth, compare and diagnose of a friction table run without numba (the engine) or scipy.stats, and without
+    matplotlib until a figure is drawn."""
+    data = tmp_path / "friction_synthetic.csv"
+    code = f"""
+import sys
+from capsule_cli.cli import main
+for args in (["synth", "--model", "configs/models/friction_coulomb_eq17_truth.yaml", "--noise-sd", "1.5",
+              "--seed", "1", "--out", {str(data)!r}, "--quiet"],
+             ["diagnose", "--model", "configs/models/coulomb.yaml", "--data", {str(data)!r}, "--out",
+              {str(tmp_path / 'diag')!r}, "--no-figures", "--quiet"],
+             ["compare", "--model", "configs/models/coulomb.yaml", "--data", {str(data)!r}, "--out",
+              {str(tmp_path / 'cmp')!r}, "--quiet"]):
+    assert main(args) == 0, args
+    heavy = [m for m in ("numba", "scipy.stats") + (("matplotlib",) if args[0] != "compare" else ())
+             if m in sys.modules]
+    assert not heavy, (args[0], heavy)
+print("ok")
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]
