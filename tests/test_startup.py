@@ -77,3 +77,29 @@ print("ok")
 """
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO)
     assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]
+
+
+def test_program_exit_freezes_the_collector_and_keeps_the_exit_code():
+    """The console entry leaves the objects of its imports to the OS (gc.freeze) and exits with the code."""
+    import gc
+
+    from capsule_cli import cli
+
+    assert gc.get_freeze_count() == 0
+    try:
+        with pytest.raises(SystemExit) as ex:
+            cli._exit_without_collecting(2)
+        assert ex.value.code == 2
+        assert gc.get_freeze_count() > 1000  # every object alive at exit
+    finally:
+        gc.unfreeze()
+
+
+def test_program_exit_code_and_streams_survive_the_fast_exit(tmp_path):
+    """Bad input still prints its one line on stderr and exits 2; --version prints and exits 0."""
+    ok = subprocess.run([sys.executable, "-m", "capsule_cli", "--version"], capture_output=True, text=True, cwd=REPO)
+    assert ok.returncode == 0 and ok.stdout.startswith("capsule-cli ")
+    bad = subprocess.run([sys.executable, "-m", "capsule_cli", "diagnose", "--model", str(tmp_path / "none.yaml"),
+                          "--data", str(tmp_path / "none.csv"), "--out", str(tmp_path / "d")],
+                         capture_output=True, text=True, cwd=REPO)
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "none.yaml" in bad.stderr, bad.stderr
