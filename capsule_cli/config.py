@@ -52,7 +52,10 @@ class _StrictLoader(yaml.SafeLoader):
     """SafeLoader that rejects duplicate keys (a silent override is a typo)."""
 
 
-class _FastStrictLoader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):
+_HAVE_LIBYAML = hasattr(yaml, "CSafeLoader")
+
+
+class _FastStrictLoader(yaml.CSafeLoader if _HAVE_LIBYAML else yaml.SafeLoader):
     """The same with libyaml's parser when PyYAML has it (about 10 times faster; every command's start-up
     reads several YAML files); the constructors are the same safe ones."""
 
@@ -85,7 +88,7 @@ def read_yaml(path: str | os.PathLike) -> Any:
             with open(p, encoding="utf-8") as fh:
                 return yaml.load(fh, Loader=_FastStrictLoader)
         except yaml.YAMLError:
-            if _FastStrictLoader.__mro__[1] is yaml.SafeLoader:
+            if not _HAVE_LIBYAML:
                 raise
             with open(p, encoding="utf-8") as fh:
                 return yaml.load(fh, Loader=_StrictLoader)
