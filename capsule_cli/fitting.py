@@ -18,7 +18,9 @@ from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 import numpy as np
-from scipy import optimize, stats
+from scipy import optimize
+
+from .distributions import t_ppf
 
 
 #: a 95 % interval wider than this many times |value| marks a parameter the data do not determine
@@ -175,7 +177,7 @@ def fit_least_squares(model: Callable[[np.ndarray], np.ndarray], y: np.ndarray, 
     J = best.jac
     cov = s2 * np.linalg.pinv(J.T @ J)
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
-    tq = stats.t.ppf(0.5 + level / 2, dof)
+    tq = t_ppf(0.5 + level / 2, dof)
     residuals = y - np.asarray(model(p), float)
     rss = float(residuals @ residuals)
     ss_tot = float(((y - y.mean()) ** 2).sum())
@@ -227,6 +229,6 @@ def prediction_band(curve: Callable[[np.ndarray], np.ndarray], fit: FitResult, l
     var = np.einsum("ij,jk,ik->i", J, fit.cov, J)
     if observation:
         var = var + fit.sigma ** 2
-    tq = stats.t.ppf(0.5 + level / 2, max(fit.n - fit.k, 1))
+    tq = t_ppf(0.5 + level / 2, max(fit.n - fit.k, 1))
     half = tq * np.sqrt(np.clip(var, 0, None))
     return centre, centre - half, centre + half

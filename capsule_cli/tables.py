@@ -344,6 +344,9 @@ MEASUREMENT_KINDS: dict[str, dict[str, tuple[str, ...]]] = {
     "trajectory": {"required": ("run", "time_s", "capsule_mm"),
                    "optional": ("magnet_mm", "f_Hz", "Pd_N", "duty", "waveform")},
 }
+#: kinds handled by the engine-based loop (capsule_cli.steps.dynamics_loop.DYN_KINDS); named here so that the
+#: quasi-static kinds' compare, diagnose and synth do not import the engine (numba, about 0.5 s)
+DYNAMICS_KINDS = ("progression", "trajectory")
 
 #: columns that must be >= 0 (the message names them)
 NONNEGATIVE = {"speed": "negative speed", "f": "negative frequency", "Pd": "negative drive amplitude",

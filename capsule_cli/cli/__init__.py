@@ -114,6 +114,8 @@ def main(argv: list[str] | None = None) -> int:
     (SIGINT) is exit code 130 and SIGTERM 143, both raised as exceptions so
     that atomic writes remove their temporary files; anything else is a bug:
     exit code 1, traceback only with ``--debug``.
+
+    Run as the program (``argv`` None), it exits through :func:`_exit_without_collecting`.
     """
     from .common import install_signal_handlers, restore_signal_handlers
 
@@ -126,8 +128,23 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         restore_signal_handlers(previous)
     if argv is None:
-        sys.exit(code)
+        _exit_without_collecting(code)
     return code
+
+
+def _exit_without_collecting(code: int) -> None:
+    """Exit with ``code``, first moving every object out of the garbage collector's reach (``gc.freeze``).
+
+    At interpreter shutdown the collector otherwise walks every object the imports created (pandas, scipy,
+    matplotlib: about 0.15 s of a short command's wall time, issue 13 item 5) only to free memory the
+    operating system reclaims anyway. Shutdown itself is unchanged: ``atexit`` handlers, ``finally`` blocks
+    and the flushing of stdout/stderr still run. The command's outputs are complete before this point
+    (written atomically and closed), so nothing depends on a finaliser the skipped collection would run.
+    """
+    import gc
+
+    gc.freeze()
+    sys.exit(code)
 
 
 def _run(command, args: list[str], debug: bool) -> int:

@@ -10,8 +10,9 @@ from pathlib import Path
 
 import matplotlib
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+matplotlib.use("Agg")  # for any pyplot user in the process; the figures here need no pyplot (start-up)
+from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
 
 from ..tables import atomic_path  # noqa: E402
 
@@ -53,30 +54,37 @@ RC = {
 
 def use_style() -> None:
     """Apply the project's matplotlib style (idempotent)."""
-    plt.rcParams.update(RC)
+    matplotlib.rcParams.update(RC)
+
+
+def _new_figure(**kw) -> Figure:
+    """Return a Figure drawn by Agg, without pyplot (no figure manager, no pyplot import: start-up time)."""
+    fig = Figure(**kw)
+    FigureCanvasAgg(fig)
+    return fig
 
 
 def figure(ncols: int = 1, nrows: int = 1, width: str = "column", height_in: float | None = None, **kw):
-    """Return ``(fig, axes)`` sized for a column or a page."""
+    """Return ``(fig, axes)`` sized for a column or a page; ``kw`` go to ``Figure.subplots`` (sharex, ...)."""
     use_style()
     w = COLUMN_WIDTH_IN if width == "column" else PAGE_WIDTH_IN
     h = height_in if height_in is not None else 2.6 * nrows
-    return plt.subplots(nrows, ncols, figsize=(w, h), constrained_layout=True, **kw)
+    fig = _new_figure(figsize=(w, h), constrained_layout=True)
+    return fig, fig.subplots(nrows, ncols, **kw)
 
 
 def blank_figure(width: str = "column", height_in: float = 2.6):
     """Return an empty figure sized for a column or a page (for custom grids of axes)."""
     use_style()
     w = COLUMN_WIDTH_IN if width == "column" else PAGE_WIDTH_IN
-    return plt.figure(figsize=(w, height_in), layout="constrained")
+    return _new_figure(figsize=(w, height_in), layout="constrained")
 
 
 def save_figure(fig, path: str | Path) -> Path:
-    """Save ``fig`` atomically (format from the suffix: .png or .pdf) and close it."""
+    """Save ``fig`` atomically (format from the suffix: .png or .pdf)."""
     path = Path(path)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format=path.suffix.lstrip(".") or "png")
-    plt.close(fig)
     return path
 
 

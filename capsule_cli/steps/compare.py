@@ -18,7 +18,8 @@ import pandas as pd
 from ..effects.model import BoundModel, Model
 from ..errors import InputError
 from ..fitting import DEGENERATE_CI_RATIO, FitResult, fit_least_squares, information_criteria, prediction_band
-from ..tables import (Column, TableSchema, is_synthetic, provenance, response_column, write_json_atomic, write_table)
+from ..tables import (DYNAMICS_KINDS, Column, TableSchema, is_synthetic, provenance, response_column,
+                      write_json_atomic, write_table)
 from ..units import split_unit, unit_label
 from ..validation import check_model_output
 from . import crossval
@@ -267,9 +268,9 @@ def metrics(ev: Evaluation, noise: dict, data_path: str, dhash: str, k_folds: in
 def run_compare(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_dir: str | Path,
                 ledger: str | Path | None, k_folds: int = 5, seed: int = 0, figures: bool = True) -> dict:
     """Calibrate ``model`` on the table, cross-validate, write metrics, residuals, figures and a ledger row."""
-    from . import dynamics_loop
+    if kind in DYNAMICS_KINDS:  # progression, trajectory: the engine-based loop (imported only then: numba)
+        from . import dynamics_loop
 
-    if dynamics_loop.is_dynamics(kind):  # progression, trajectory: the engine-based loop
         return dynamics_loop.run_compare(model, df, data_path, out_dir, ledger, k_folds, seed, figures)
     from .ledger import append_ledger
 

@@ -20,7 +20,7 @@ import yaml
 
 from ..effects.model import Model
 from ..effects.registry import Effect, base_name, effects as all_effects, next_instance, si_factor
-from ..tables import (is_synthetic, provenance, response_column, write_json_atomic, write_table,
+from ..tables import (DYNAMICS_KINDS, is_synthetic, provenance, response_column, write_json_atomic, write_table,
                       write_text_atomic)
 from ..units import split_unit, unit_label
 from ..validation import check_model_output
@@ -34,9 +34,6 @@ from .verdict import (ALPHA_EFFECT, ALPHA_STRUCTURE, RULE_TEXT, FitSummary, Nois
                       decide_verdict)
 
 ALPHA = ALPHA_STRUCTURE
-#: kinds diagnosed by the engine-based loop (capsule_cli.steps.dynamics_loop.DYN_KINDS; named here so that a
-#: quasi-static diagnose does not import the engine)
-DYNAMICS_KINDS = ("progression", "trajectory")
 CANDIDATE_STARTS = 3  # effects with a data-based guess
 PLAIN_STARTS = 8  # effects without one (plugins): more random starts within the bounds
 

@@ -32,8 +32,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
+from ..distributions import t_ppf
 from ..errors import InputError
 from ..fitting import FitResult, fit_least_squares, prediction_band
 
@@ -225,7 +225,7 @@ def _sorted_by_tau(fit: FitResult, m: int) -> FitResult:
 def _parameters(of: OrderFit, factor: float | None) -> dict:
     """Parameters with 95 % intervals: amplitudes [kPa], time constants [s], equilibrium [kPa], moduli."""
     f = of.fit
-    tq = stats.t.ppf(0.975, max(f.n - f.k, 1))
+    tq = t_ppf(0.975, max(f.n - f.k, 1))
     out = {"P_inf_kPa": {"value": float(f.values[0]), "stderr": float(f.stderr[0]),
                          "ci95": [float(f.ci_low[0]), float(f.ci_high[0])]},
            "arms": []}

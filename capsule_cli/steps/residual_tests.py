@@ -28,8 +28,8 @@ import math
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
+from .. import distributions as dist
 from ..tables import LABEL_COLUMNS
 from ..units import split_unit
 
@@ -59,7 +59,7 @@ def trend_test(x, r) -> tuple[float, float]:
     x = np.asarray(x, float)
     if np.unique(x).size < 3:
         return float("nan"), float("nan")
-    rho, p = stats.spearmanr(x, r)
+    rho, p = dist.spearman(x, r)
     return float(rho), float(p)
 
 
@@ -85,7 +85,7 @@ def lack_of_fit_test(x, r) -> tuple[float, float, str]:
         return float("nan"), float("nan"), "none"
     if all(q.size < 2 for q in parts):
         return float("nan"), float("nan"), "none"
-    F, p = stats.f_oneway(*parts)
+    F, p = dist.f_oneway(*parts)
     return float(F), float(p), method
 
 
@@ -113,7 +113,7 @@ def runs_test(x, r) -> tuple[float, float]:
     if var <= 0:
         return float("nan"), float("nan")
     z = (runs - mean) / math.sqrt(var)
-    return float(z), float(stats.norm.cdf(z))
+    return float(z), dist.norm_cdf(z)
 
 
 #: below this many points the periodogram's false-alarm probability is simulated (the analytic
@@ -277,7 +277,7 @@ def gasser_sd(x: np.ndarray, y: np.ndarray) -> float:
 
 def outlier_threshold(n: int, alpha: float = OUTLIER_ALPHA) -> float:
     """Return the |z| above which a row is an outlier: Bonferroni over n rows at family ``alpha``, >= 3.5."""
-    return max(3.5, float(stats.norm.isf(alpha / (2 * max(n, 1)))))
+    return max(3.5, dist.norm_isf(alpha / (2 * max(n, 1))))
 
 
 def _robust_scale(z: np.ndarray) -> float:
@@ -370,7 +370,7 @@ def lag1_correlation(r: np.ndarray, order: np.ndarray, segment: np.ndarray) -> t
         return float("nan"), float("nan")
     r1 = float(np.sum(r[1:][same] * r[:-1][same]) / den)
     z = (r1 + 1.0 / m) * math.sqrt(m)
-    return r1, float(stats.norm.sf(z))
+    return r1, dist.norm_sf(z)
 
 
 def serial_correlation(df: pd.DataFrame, residual: np.ndarray, covariates: list[str],

@@ -16,8 +16,8 @@ import pandas as pd
 from ..config import config_hash, configs_dir
 from ..effects.model import Model
 from ..errors import InputError
-from ..tables import (LABEL_COLUMNS, check_column_names, numeric_column, provenance, response_column,
-                      user_path, write_measurements)
+from ..tables import (DYNAMICS_KINDS, LABEL_COLUMNS, check_column_names, numeric_column, provenance,
+                      response_column, user_path, write_measurements)
 from ..units import split_unit
 
 #: default design per kind (configs/designs/)
@@ -71,9 +71,9 @@ def synthesize(model: Model, design: pd.DataFrame, noise_sd: float, noise_rel: f
     Dynamics kinds go to :mod:`.dynamics_loop`: progression speeds at the design's conditions
     (replicates as repeated rows), trajectories as a camera records them at ``frame_rate_Hz``.
     """
-    from . import dynamics_loop
+    if model.kind in DYNAMICS_KINDS:  # the engine-based loop, imported only then (numba)
+        from . import dynamics_loop
 
-    if dynamics_loop.is_dynamics(model.kind):
         if noise_rel:
             raise InputError("--noise-rel is not available for dynamics data: give --noise-sd")
         if noise_sd < 0:

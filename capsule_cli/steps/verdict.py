@@ -53,8 +53,8 @@ from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
 import numpy as np
-from scipy import stats
 
+from .. import distributions as dist
 from . import crossval
 
 ALPHA_EFFECT = 0.01
@@ -180,7 +180,7 @@ def nested_f_test(rss0: float, k0: int, rss1: float, k1: int, n: int) -> tuple[f
     if dk <= 0 or dof <= 0 or rss1 <= 0:
         return float("nan"), float("nan")
     F = max(rss0 - rss1, 0.0) / dk / (rss1 / dof)
-    return float(F), float(stats.f.sf(F, dk, dof))
+    return float(F), dist.f_sf(F, dk, dof)
 
 
 def aicc(rss: float, n: int, k: int) -> float:
@@ -213,7 +213,7 @@ def vuong_test(resid_a: np.ndarray, k_a: int, resid_b: np.ndarray, k_b: int) -> 
     if omega <= 1e-12 * max(1.0, float(np.abs(d).max())):
         return 0.0, 1.0
     z = lr / (math.sqrt(n) * omega)
-    return float(z), float(2 * stats.norm.sf(abs(z)))
+    return float(z), float(2 * dist.norm_sf(abs(z)))
 
 
 def rank_supported(y: np.ndarray, sup: Sequence[FitSummary], alpha: float = ALPHA_SEPARATE
@@ -259,7 +259,7 @@ def collinear_groups(covariates: Mapping[str, np.ndarray], threshold: float = CO
         xa = np.asarray(covariates[a], float)
         for b in names[i + 1:]:
             xb = np.asarray(covariates[b], float)
-            r = max(abs(np.corrcoef(xa, xb)[0, 1]), abs(stats.spearmanr(xa, xb)[0]))
+            r = max(abs(np.corrcoef(xa, xb)[0, 1]), abs(dist.spearman(xa, xb)[0]))
             if np.isfinite(r) and r >= threshold:
                 parent[find(b)] = find(a)
     groups: dict[str, list[str]] = {}
@@ -296,8 +296,8 @@ def measurements_needed(f_stat: float, dk: int, n: int, k1: int, alpha: float,
         dof = m - k1
         if dof < 1:
             continue
-        crit = stats.f.isf(alpha, dk, dof)
-        if stats.ncf.sf(crit, dk, dof, lam * m / n) >= power:
+        crit = dist.f_isf(alpha, dk, dof)
+        if dist.ncf_sf(crit, dk, dof, lam * m / n) >= power:
             return m
     return None
 
