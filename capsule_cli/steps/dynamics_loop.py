@@ -462,9 +462,11 @@ def calibrate(bound: DynBound, y: np.ndarray, sigma: float, rows=None, x0=None, 
     from x0, with the fold budget, on the residuals weighted by ``weights`` (the full fit's).
 
     Progression (three stages): the scan and the Nelder-Mead starts minimise the robust Cauchy loss
-    (ROBUST_SCALE); at its optimum the starting-state spread s_i of each condition is estimated once
-    (``simulate(starts=True)``) and fixes the weights w_i = sigma / sqrt(sigma^2 + s_i^2); a short
-    Nelder-Mead (WARM_STEP simplex) and the polish then minimise the weighted sum of squares. The weights
+    (ROBUST_SCALE, shrunk while the residuals show the noise SD was overestimated: GRADUATED_ROUNDS); at its
+    optimum the starting-state spread s_i of each condition is estimated once (``simulate(starts=True)``) and
+    fixes the weights w_i = sigma / sqrt(sigma^2 + s_i^2); a short Nelder-Mead (WARM_STEP simplex; only when
+    some weighted residual lies outside the Cauchy loss's quadratic zone, where the two optima differ) and
+    the polish then minimise the weighted sum of squares. The weights
     are fixed before the least-squares stages, so the optimiser cannot buy a lower cost by moving to a
     chaotic response (the reason a spread-weighted cost is not minimised directly).
     """
@@ -532,8 +534,12 @@ def calibrate(bound: DynBound, y: np.ndarray, sigma: float, rows=None, x0=None, 
         s_w = max(s_fit, 1e-12)
         w = s_w / np.sqrt(s_w ** 2 + np.nan_to_num(sim["spread"]) ** 2)
         weights = w
-        best_u, best_c = _nelder_mead(cost, [best_u], max(budget.evals_per_param * k // 2, 2 * k + 2), WARM_STEP,
-                                      s_w)
+        r_w = np.nan_to_num((y - sim["pred"]) * w, nan=np.inf)[idx]
+        if np.any(np.abs(r_w) > scale[0]):  # some row outside the Cauchy loss's quadratic zone: the optima differ
+            best_u, best_c = _nelder_mead(cost, [best_u], max(budget.evals_per_param * k // 2, 2 * k + 2),
+                                          WARM_STEP, s_w)
+        else:  # every weighted residual where both losses are ~quadratic: the polish alone refines
+            best_c = cost(best_u)
     if budget.polish_evals_per_param > 0:
         best_u, best_c = _polish(resid, best_u, best_c, budget.polish_evals_per_param * k)
     return Fit(to_theta(best_u), best_c, nfev[0], len(starts), weights)
