@@ -1,7 +1,7 @@
 """False-alarm rate of the dynamics loop's verdict (issue 12 item 7); a benchmark, not a test.
 
 Null progression data sets (the base model is the truth: one-sided Coulomb, P_f = 0.02 N, noise 0.5 mm/s,
-2 replicates) over many seeds and small designs, each given to ``diagnose`` with the base model (P_f free).
+2 replicates, or ``--replicates 1``) over many seeds and small designs, each given to ``diagnose`` with the base model (P_f free).
 Counts the outcomes of :func:`capsule_cli.steps.verdict.decide_verdict` (the rule shared with the
 quasi-static loop): a *finding* is a named effect (missing_effect) or a named covariate (not_built_in);
 "cannot tell" names nothing and is counted apart. The rule's budget is ALPHA_EFFECT + ALPHA_STRUCTURE = 2 %.
@@ -54,7 +54,8 @@ def _models(tmp: Path):
     return out["truth"], out["base"]
 
 
-def run(seeds: int, effort: str, candidates: list[str] | None, out: str | None, first_seed: int = 0) -> dict:
+def run(seeds: int, effort: str, candidates: list[str] | None, out: str | None, first_seed: int = 0,
+        replicates: int = 2) -> dict:
     budget = DL.EFFORTS[effort]
     rows, t0 = [], time.perf_counter()
     rec: dict = {}
@@ -63,7 +64,7 @@ def run(seeds: int, effort: str, candidates: list[str] | None, out: str | None, 
         truth, base = _models(tmp)
         for s in range(first_seed, first_seed + seeds):
             dname = list(DESIGNS)[s % len(DESIGNS)]
-            df = DL.synthesize_progression(truth, DESIGNS[dname], NOISE, 2, 10_000 + s)
+            df = DL.synthesize_progression(truth, DESIGNS[dname], NOISE, replicates, 10_000 + s)
             path = tmp / f"null_{s}_synthetic.csv"
             df.to_csv(path, index=False)
             t1 = time.perf_counter()
@@ -83,7 +84,8 @@ def run(seeds: int, effort: str, candidates: list[str] | None, out: str | None, 
             hi = float(stats.beta.ppf(0.975, findings + 1, n - findings)) if findings < n else 1.0
             rec = {"what": "false-alarm rate of the dynamics diagnose on null progression data",
                    "budget_rule": ALPHA_EFFECT + ALPHA_STRUCTURE, "effort": effort,
-                   "candidates": candidates or "all applicable", "noise_sd_mm_s": NOISE, "protocol": PROTO,
+                   "candidates": candidates or "all applicable", "noise_sd_mm_s": NOISE, "replicates": replicates,
+                   "protocol": PROTO,
                    "designs": {k: d.to_dict(orient="list") for k, d in DESIGNS.items()},
                    "data_sets": n, "findings": findings, "finding_rate": findings / n, "finding_rate_ci95": [lo, hi],
                    "outcomes": dict(outcomes), "seconds": time.perf_counter() - t0, "runs": rows}
@@ -100,10 +102,12 @@ def main() -> None:
     ap.add_argument("--effort", default="quick", choices=sorted(DL.EFFORTS))
     ap.add_argument("--candidates", default="secondary_constraint,viscous_drag",
                     help="comma-separated effects to try ('' for all applicable)")
+    ap.add_argument("--replicates", type=int, default=2,
+                    help="values per condition (1: no replicates, the noise then comes from the fits' residuals)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "dynamics_loop_calibration_result.json"))
     a = ap.parse_args()
     cands = [c for c in a.candidates.split(",") if c] or None
-    run(a.seeds, a.effort, cands, a.out, a.first_seed)
+    run(a.seeds, a.effort, cands, a.out, a.first_seed, a.replicates)
 
 
 if __name__ == "__main__":
