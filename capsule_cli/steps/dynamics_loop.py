@@ -717,12 +717,19 @@ def trajectory_noise(noise: dict, evs: Sequence[DynEvaluation]) -> dict:
     sd = math.sqrt(float(np.nansum(best.resid ** 2)) / (n - k))
     if noise.get("reliable", True) and np.isfinite(noise["sd"]) and noise["sd"] <= sd:
         return noise
+    return _residual_noise(noise, sd, best, f"{n} frames, {k} free parameters",
+                           "which frames that undersample the motion inflate; an upper bound of the noise")
+
+
+def _residual_noise(noise: dict, sd: float, best: DynEvaluation, what: str, why: str) -> dict:
+    """Return ``noise`` with its SD replaced by ``sd``, the residual SD of ``best`` (n - k degrees of
+    freedom), and the method saying so (``what``: the rows and parameters; ``why``: why not the differences)."""
+    n, k = best.y.size, best.k
     name = "+".join(best.bound.model.effect_names) or "the model as is"
     return {**noise, "sd": sd, "se": sd / math.sqrt(2 * (n - k)), "dof": int(n - k), "reliable": True,
             "correlated": None,
-            "method": (f"residual SD of the best-fitting model tried ({name}, {n} frames, {k} free parameters): "
-                       f"smaller than the difference-based estimate ({noise['sd']:.3g}), which frames that "
-                       "undersample the motion inflate; an upper bound of the noise")}
+            "method": (f"residual SD of the best-fitting model tried ({name}, {what}): smaller than the "
+                       f"difference-based estimate ({noise['sd']:.3g}), {why}")}
 
 
 def standardised_residual_sd(ev: DynEvaluation) -> float:
@@ -760,16 +767,12 @@ def progression_noise(noise: dict, evs: Sequence[DynEvaluation]) -> dict:
     if not fits:
         return noise
     sd, best = min(fits, key=lambda t: t[0])
-    n, k = best.y.size, best.k
     if not (sd > 0) or (np.isfinite(noise["sd"]) and noise["sd"] <= sd):
         return noise
-    name = "+".join(best.bound.model.effect_names) or "the model as is"
-    return {**noise, "sd": sd, "se": sd / math.sqrt(2 * (n - k)), "dof": int(n - k), "reliable": True,
-            "correlated": None,
-            "method": (f"residual SD of the best-fitting model tried ({name}, {n} conditions, {k} free parameters, "
-                       f"standardised by the model's spread where the response is irregular): smaller than the "
-                       f"difference-based estimate ({noise['sd']:.3g}), which a speed that jumps between "
-                       "neighbouring conditions inflates; no replicates: an upper bound of the noise")}
+    return _residual_noise(noise, sd, best, f"{best.y.size} conditions, {best.k} free parameters, standardised by "
+                           "the model's spread where the response is irregular",
+                           "which a speed that jumps between neighbouring conditions inflates; no replicates: "
+                           "an upper bound of the noise")
 
 
 def noise_of(bound: DynBound) -> dict:
