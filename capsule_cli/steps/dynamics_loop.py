@@ -796,6 +796,16 @@ def noise_of(bound: DynBound) -> dict:
     return noise
 
 
+def box_edges(ev: DynEvaluation, owner: str) -> list[str]:
+    """Return the parameters of ``owner`` that ended at an edge of their fit box, which the verdict ranks
+    last (the model or the bounds may be wrong). A coefficient at a lower bound of exactly 0 is not one: a
+    contact or drag damping, a speed-law rise, of zero is a physical value (the term vanishes), not a box
+    edge, and a secondary constraint whose contact is undamped is still a secondary constraint. The
+    parameter table still reports it as at its bound."""
+    return [k for k, p in param_table(ev).items()
+            if p["owner"] == owner and p.get("at_bound") and not (p["bounds"][0] == 0.0 and p["value"] <= 0.0)]
+
+
 def param_table(ev: DynEvaluation) -> dict:
     """Return ``{key: {value, free, unit, owner, ci95, at_bound, bounds}}``."""
     vals = ev.bound.values(ev.theta)
@@ -950,8 +960,7 @@ def dynamics_verdict(base: DynEvaluation, cands: Sequence[dict], noise: dict, si
     for c in cands:
         ev = c["ev"]
         own = [x for x in covs if x in set(c["effect"].covariates)]
-        at_b = [k for k, p in param_table(ev).items() if p["owner"] == c["effect"].name and p.get("at_bound")]
-        sums.append(summary_of(ev, c["effect"].name, own, c.get("structure"), at_b))
+        sums.append(summary_of(ev, c["effect"].name, own, c.get("structure"), box_edges(ev, c["effect"].name)))
         c["delta_cv"], c["delta_cv_se"] = crossval.paired_difference(base.cv_sq, ev.cv_sq, base.groups)
         c["delta_bic"] = ev.bic - base.bic
     nz = Noise(float(sigma), float(noise.get("se") or 0.0), bool(noise.get("reliable", True)),
