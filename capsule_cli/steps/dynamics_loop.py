@@ -325,9 +325,10 @@ class DynBound(FreeParams):
             vel[sel] = out["velocity_mm_s"].to_numpy()
             spread[sel] = np.where(out["response_class"] == "irregular", out["window_sd_mm_s"].to_numpy() / 2, 0.0)
             cls[sel] = out["response_class"].to_numpy(object)
-            irr = sel[out["response_class"].to_numpy(object) == "irregular"]
-            if starts and self.protocol.start == "rest" and irr.size:
-                self._start_spread(sysm, irr, vel, spread)
+            if starts and self.protocol.start == "rest":
+                irr = sel[cls[sel] == "irregular"]
+                if irr.size:
+                    self._start_spread(sysm, irr, vel, spread)
         ci = self.cond_index
         return {"pred": vel[ci], "spread": spread[ci], "cls": cls[ci]}
 
