@@ -50,6 +50,21 @@ defective, as a fallback).
 Time is kept as (period index, time within the period) so that the phase of the
 drive and the Poincare section at phase 0 are exact for any run length.
 
+Kernels (each compiled, one job)
+--------------------------------
+* :func:`run_core_at`: the driver. Per segment it picks the mode (contact x shell state x
+  effects), runs it to its first event or the segment's end, applies the transition and
+  keeps the period's bookkeeping.
+* exact segments: :func:`setup_linear` / :func:`setup_general` (the closed forms), the
+  event scan of a general mode :func:`locate_event` with :func:`refine_root`. The base modes'
+  scan stays inline in the driver: as its own kernel it cost 23 % per period on the bench's
+  hot path (measured, session 5), since it runs once per event at a few microseconds.
+* :func:`adaptive_segment`: the nonlinear mode (DOP853 :func:`dop853_step`,
+  :func:`dop853_error`, dense output :func:`dop853_dense`; events on the dense output).
+* :func:`shell_transition`: the set-valued friction law at an event (stick or slip from the
+  net force, :func:`decide_shell` / :func:`decide_patch`) and the jumps it implies.
+* :func:`open_period` / :func:`close_period`: the rows of the period table.
+
 Status codes returned by :func:`run_core`: see ``STATUS_*``.
 """
 from __future__ import annotations
@@ -1820,6 +1835,368 @@ def _grow(ev, n):
 
 
 @njit(cache=True)
+def open_period(row, xr, vr, Vc):
+    """Record the state at the start of a recorded excitation period in its row of the period table:
+    x_r [m], v_r [m/s], the magnet's and the shell's velocities [m/s]."""
+    row[P_XR0] = xr
+    row[P_VR0] = vr
+    row[P_VM0] = Vc + vr
+    row[P_VC0] = Vc
+
+
+@njit(cache=True)
+def close_period(row, Xc_start, Xc, n_front, n_back, maxF, t_maxF, stick_fraction, n_stick):
+    """Record a finished excitation period in its row of the period table: the shell's displacement
+    over the period [m] and its start [m], the impacts on each constraint, the peak |F_i| [N] and its
+    time [s], the fraction of the period stuck [-] and the number of sticks."""
+    row[P_DISP] = Xc - Xc_start
+    row[P_NFRONT] = n_front
+    row[P_NBACK] = n_back
+    row[P_MAXF] = maxF
+    row[P_TMAXF] = t_maxF
+    row[P_STICK] = stick_fraction
+    row[P_XC0] = Xc_start
+    row[P_NSTICK] = n_stick
+
+
+@njit(cache=True)
+def shell_transition(p, ev, shell, contact, xr, vr, Vc, dsub, fe_now, pFm, pFc, pdFc, abort):
+    """The shell's state after event ``ev`` (physics.md section 3: the set-valued friction law decides
+    stick or slip from the net force, seed 000 eq 21): the new contact state, the event kinds to record,
+    and the jumps of V_c and of the presliding spring's extension d.
+
+    fe_now : drive force [N] at the event; pFm, pFc, pdFc : the plugin forces on a shell at rest (zeros
+    without a plugin; :func:`plugin_stick_terms`); abort : a plugin failed while they were computed
+    (return before any jump). Returns (new shell state (< 0: ill-posed), contact, kind, kind2, V_c [m/s],
+    d [m], friction work released [J] when a c_s = 0 patch starts sliding)."""
+    compliant = p[I_KS] > 0.0
+    kind = 0
+    kind2 = 0
+    e_fric = 0.0
+    if ev == EV_FRONT_ON:
+        contact = 1
+        kind = K_FRONT_ON
+    elif ev == EV_BACK_ON:
+        contact = 2
+        kind = K_BACK_ON
+    elif ev == EV_FRONT_OFF:
+        contact = 0
+        kind = K_FRONT_OFF
+    elif ev == EV_BACK_OFF:
+        contact = 0
+        kind = K_BACK_OFF
+    new_shell = shell
+    if compliant:
+        if ev == EV_BREAK_POS or ev == EV_BREAK_NEG:
+            new_shell = decide_patch(p, contact, xr, vr, Vc, dsub, fe_now, pFc)
+        elif ev == EV_SLIP_END:
+            # the patch stops with its force at the kinetic level (<= breakaway): it sticks; a force
+            # that keeps rising past the breakaway is a break event of the stuck patch
+            new_shell = PATCH_STICK
+    elif ev == EV_FRONT_ON or ev == EV_BACK_ON or ev == EV_FRONT_OFF or ev == EV_BACK_OFF:
+        if shell == STICK:
+            new_shell = decide_shell(p, contact, xr, vr, fe_now, pFm, pFc, pdFc)
+    elif ev == EV_BREAK_POS or ev == EV_BREAK_NEG:
+        new_shell = decide_shell(p, contact, xr, vr, fe_now, pFm, pFc, pdFc)
+    elif ev == EV_SLIP_END:
+        Vc = 0.0
+        new_shell = decide_shell(p, contact, xr, vr, fe_now, pFm, pFc, pdFc)
+    elif ev == EV_FAST_ON:
+        new_shell = FAST_POS if shell == SLIP_POS else FAST_NEG
+    elif ev == EV_FAST_OFF:
+        if p[I_VFAST] > 0.0:
+            new_shell = SLIP_POS if shell == FAST_POS else SLIP_NEG
+        else:
+            Vc = 0.0
+            new_shell = decide_shell(p, contact, xr, vr, fe_now, pFm, pFc, pdFc)
+    if abort or new_shell < 0:
+        return new_shell, contact, kind, kind2, Vc, dsub, e_fric
+    if new_shell != shell and compliant:
+        if new_shell == PATCH_STICK:
+            kind2 = K_STICK
+        elif shell == PATCH_STICK:
+            kind2 = K_SLIP_FWD if new_shell == FAST_POS else K_SLIP_BWD
+            if p[I_CS] == 0.0:
+                # c_s = 0: the massless patch jumps to the kinetic balance k_s d = sgn L at once;
+                # the released spring energy is dissipated at the patch
+                dnew = (1.0 if new_shell == FAST_POS else -1.0) * friction_level(p, 0.0, xr) / p[I_KS]
+                e_fric = 0.5 * p[I_KS] * (dsub * dsub - dnew * dnew)
+                dsub = dnew
+        else:  # reversal without sticking
+            kind2 = K_SLIP_FWD if new_shell == FAST_POS else K_SLIP_BWD
+    elif new_shell != shell:
+        if new_shell == STICK:
+            kind2 = K_STICK
+            Vc = 0.0
+        elif (new_shell == SLIP_POS or new_shell == FAST_POS) and not (shell == SLIP_POS or shell == FAST_POS):
+            kind2 = K_SLIP_FWD
+        elif (new_shell == SLIP_NEG or new_shell == FAST_NEG) and not (shell == SLIP_NEG or shell == FAST_NEG):
+            kind2 = K_SLIP_BWD
+        if new_shell != STICK and shell == STICK:
+            Vc = 0.0
+    return new_shell, contact, kind, kind2, Vc, dsub, e_fric
+
+
+@njit(cache=True)
+def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr, Xc, Vc, dsub,
+                     rtol, max_steps, recording, do_energy, maxF, t_maxF, sample_times, n_transient, samples,
+                     j_sample, rec_t0, seg_stick, plug, pq, pfail, energy, y, y1, yt, k1, k7, rc, KD, yd):
+    """Advance one mode on the adaptive path (DOP853 with dense output, tolerance ``rtol``) from phase
+    ``s`` [s] for at most ``tau_end`` [s], or to its first event: a speed-dependent law above V_min
+    (seed 000 eqs 22-23, physics.md section 3), a nearly defective general mode, or any mode with a
+    user plugin force.
+
+    Events are located on the dense output by bisection (grazing contacts by the interpolant's
+    minimum); the peak |F_i| of the segment updates (maxF, t_maxF) [N, s]; trajectory samples due
+    within the segment are written from the dense output; with do_energy the segment's work and
+    dissipation are added to ``energy``. y .. yd, rc, KD are work arrays (NY, (8, NY), (DOP_NK, NY)).
+
+    Returns (status, status_time_s, event code (EV_NONE at tau_end), tau_event_s, x_r, v_r, X_c, V_c,
+    d, maxF, t_maxF, next sample index)."""
+    status = STATUS_OK
+    status_t = 0.0
+    ev = EV_NONE
+    K, Cd, F0 = contact_terms(p, contact)
+    Mm = p[I_MM]
+    Mc = p[I_MC]
+    f = p[I_F]
+    harmonic = p[I_WAVE] < 0.5
+    compliant = p[I_KS] > 0.0
+    tol_x = 1e-13 * p[I_XS]
+    n_samples = sample_times.shape[0]
+    sg = 1.0 if (shell == FAST_POS or shell == SLIP_POS) else -1.0
+    # a shell stuck on a rigid wall comes here only with a plugin force: it is held (V_c = 0).
+    # With a plugin the right-hand side and events are seg_rhs / seg_event_value; without, rk_rhs /
+    # rk_event_value are called directly: a plugin call inside them keeps LLVM from inlining
+    # them here (measured: the speed-law slips 40 % slower), so the branch sits at the call sites.
+    held = shell == STICK
+    t0 = period * T
+    # a slip (not fast) mode here is a general linear mode with nearly defective eigenvectors:
+    # its events are the slip's end (V_c = 0) and V_min
+    rk_slow = shell == SLIP_POS or shell == SLIP_NEG
+    vlo = 0.0 if rk_slow else p[I_VFAST]
+    vhi = p[I_VFAST] if rk_slow else np.inf
+    w0 = math.sqrt(K * (1.0 / Mm + 1.0 / Mc))
+    wmax = w0
+    if harmonic:
+        wmax = max(wmax, TWO_PI * f)
+    if compliant:
+        if shell == PATCH_STICK:
+            sg = 0.0
+            wmax = max(wmax, math.sqrt((K + p[I_KS]) / Mc + K / Mm))
+        elif p[I_CS] > 0.0:
+            wmax = max(wmax, p[I_KS] / p[I_CS])
+    hmax = TWO_PI / wmax / 2.0
+    y[0] = xr
+    y[1] = vr
+    y[2] = Vc
+    y[3] = Xc
+    for i in range(4, NY):
+        y[i] = 0.0
+    y[8] = dsub
+    tau = 0.0
+    hh = hmax * 0.1
+    if plug:
+        seg_rhs(p, contact, sg, held, s, t0, fe_level, y, k1, pq, pfail)
+    else:
+        rk_rhs(p, contact, sg, s, fe_level, y, k1)
+    atol_x = rtol * p[I_XS]
+    atol_v = rtol * p[I_VS]
+    nsteps = 0
+    rk_rej = False
+    rk_err_old = 0.0
+    rk_h_old = 1.0
+    Fa = K * y[0] + Cd * y[1] + F0
+    dFa = K * k1[0] + Cd * k1[1]
+    while True:
+        nsteps += 1
+        if nsteps > max_steps:
+            status = STATUS_RKFAIL
+            status_t = period * T + s + tau
+            break
+        hh = min(hh, hmax, tau_end - tau)
+        sa = s + tau
+        dop853_step(p, contact, sg, sa, hh, fe_level, y, k1, KD, yt, y1, k7, plug, held, t0, pq, pfail)
+        if pfail[0] != 0.0:
+            status = STATUS_PLUGIN
+            status_t = t0 + sa
+            break
+        err = dop853_error(KD, hh, y, y1, rtol, atol_x, atol_v)
+        if err > 1.0:
+            hh *= max(0.2, 0.9 * err ** -RK_ORDER_EXP)
+            rk_rej = True
+            continue
+        # dense output: computed when a step needs it (events, F_i extrema, samples)
+        rc_ok = False
+        # events
+        th_ev = 2.0
+        e_ev = -1
+        for j in range(4):
+            if plug:
+                g1 = seg_event_value(p, contact, sg, held, vlo, vhi, j, y1, t0 + sa + hh, pq, pfail)
+            else:
+                g1 = rk_event_value(p, contact, sg, vlo, vhi, j, y1)
+            lo = 0.0
+            hi = -1.0
+            if g1 < 0.0:
+                hi = 1.0
+            elif j < 2 and g1 != 1.0:
+                # grazing: the contact function's derivative is +-v_r
+                dsa = k1[0] if ((contact == 0 and j == 1) or contact == 1) else -k1[0]
+                dsb = k7[0] if ((contact == 0 and j == 1) or contact == 1) else -k7[0]
+                if dsa < 0.0 and dsb > 0.0:
+                    if not rc_ok:
+                        dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail)
+                        rc_ok = True
+                    a_ = 0.0
+                    b_ = 1.0
+                    for _ in range(60):
+                        mth = 0.5 * (a_ + b_)
+                        # derivative from the interpolant (central difference)
+                        dense_eval(rc, min(mth + 1e-7, 1.0), yd)
+                        gp = rk_event_value(p, contact, sg, vlo, vhi, j, yd)
+                        dense_eval(rc, max(mth - 1e-7, 0.0), yd)
+                        gm_ = rk_event_value(p, contact, sg, vlo, vhi, j, yd)
+                        if gp - gm_ < 0.0:
+                            a_ = mth
+                        else:
+                            b_ = mth
+                    dense_eval(rc, 0.5 * (a_ + b_), yd)
+                    if rk_event_value(p, contact, sg, vlo, vhi, j, yd) < -tol_x:
+                        hi = 0.5 * (a_ + b_)
+            if hi > 0.0:
+                if not rc_ok:
+                    dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail)
+                    rc_ok = True
+                a_ = lo
+                b_ = hi
+                for _ in range(80):
+                    mth = 0.5 * (a_ + b_)
+                    dense_eval(rc, mth, yd)
+                    if plug:
+                        gmid = seg_event_value(p, contact, sg, held, vlo, vhi, j, yd, t0 + sa + mth * hh,
+                                               pq, pfail)
+                    else:
+                        gmid = rk_event_value(p, contact, sg, vlo, vhi, j, yd)
+                    if gmid >= 0.0:
+                        a_ = mth
+                    else:
+                        b_ = mth
+                    if b_ - a_ < 1e-16:
+                        break
+                if b_ < th_ev:
+                    th_ev = b_
+                    e_ev = j
+        th_stop = 1.0 if e_ev < 0 else th_ev
+        if th_stop < 1.0:
+            dense_eval(rc, th_stop, y1)
+        # F_i extrema
+        if recording:
+            Fb = K * y1[0] + Cd * y1[1] + F0
+            dFb = K * k7[0] + Cd * k7[1]
+            if dFa * dFb < 0.0:
+                if not rc_ok:
+                    dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail)
+                    rc_ok = True
+                a_ = 0.0
+                b_ = th_stop
+                sgnF = 1.0 if dFa > 0 else -1.0
+                for _ in range(60):
+                    m1 = a_ + (b_ - a_) * 0.381966
+                    m2 = a_ + (b_ - a_) * 0.618034
+                    dense_eval(rc, m1, yd)
+                    f1 = sgnF * (K * yd[0] + Cd * yd[1] + F0)
+                    dense_eval(rc, m2, yd)
+                    f2 = sgnF * (K * yd[0] + Cd * yd[1] + F0)
+                    if f1 > f2:
+                        b_ = m2
+                    else:
+                        a_ = m1
+                dense_eval(rc, 0.5 * (a_ + b_), yd)
+                Fm = abs(K * yd[0] + Cd * yd[1] + F0)
+                if Fm > maxF:
+                    maxF = Fm
+                    t_maxF = period * T + sa + 0.5 * (a_ + b_) * hh
+            if abs(Fb) > maxF:
+                maxF = abs(Fb)
+                t_maxF = period * T + sa + th_stop * hh
+            Fa = Fb
+            dFa = dFb
+        # samples
+        if recording and n_samples > 0:
+            while j_sample < n_samples:
+                ts = sample_times[j_sample] - (period - n_transient) * T
+                if ts >= sa + th_stop * hh:
+                    break
+                th = (ts - sa) / hh
+                if th < 0.0:
+                    th = 0.0
+                if not rc_ok:
+                    dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail)
+                    rc_ok = True
+                dense_eval(rc, th, yd)
+                row = samples[j_sample]
+                row[S_T] = rec_t0 + sample_times[j_sample]
+                row[S_XM] = yd[3] + yd[0]
+                row[S_XC] = yd[3]
+                row[S_VM] = yd[2] + yd[1]
+                row[S_VC] = yd[2]
+                row[S_XR] = yd[0]
+                row[S_CONTACT] = contact
+                row[S_STICK] = 1.0 if seg_stick else 0.0
+                row[S_FI] = K * yd[0] + Cd * yd[1] + F0
+                j_sample += 1
+        if e_ev >= 0:
+            tau += th_stop * hh
+            for i in range(NY):
+                y[i] = y1[i]
+            if held and e_ev >= 2:
+                ev = EV_BREAK_POS if e_ev == 2 else EV_BREAK_NEG
+            elif compliant and e_ev >= 2:
+                if sg == 0.0:
+                    ev = EV_BREAK_POS if e_ev == 2 else EV_BREAK_NEG
+                else:
+                    ev = EV_SLIP_END
+            elif e_ev == 2:
+                ev = EV_SLIP_END if rk_slow else EV_FAST_OFF
+            elif e_ev == 3:
+                ev = EV_FAST_ON
+            elif contact == 0:
+                ev = EV_FRONT_ON if e_ev == 0 else EV_BACK_ON
+            elif contact == 1:
+                ev = EV_FRONT_OFF
+            else:
+                ev = EV_BACK_OFF
+            break
+        tau += hh
+        for i in range(NY):
+            y[i] = y1[i]
+            k1[i] = k7[i]
+        if tau >= tau_end:
+            break
+        fac = rk_step_factor(err, rk_rej, rk_err_old, hh / rk_h_old)
+        rk_err_old = max(err, 1e-4)
+        rk_h_old = hh
+        hh *= fac
+        rk_rej = False
+    if status != STATUS_OK:
+        return status, status_t, ev, tau, xr, vr, Xc, Vc, dsub, maxF, t_maxF, j_sample
+    tau_ev = tau if ev != EV_NONE else tau_end
+    xr = y[0]
+    vr = y[1]
+    Vc = y[2]
+    Xc = y[3]
+    dsub = y[8]
+    if recording and do_energy:
+        energy[E_DRIVE] += y[4]
+        energy[E_DAMP] += y[5]
+        energy[E_CONTACT] += y[6]
+        energy[E_FRIC] += y[7]
+        energy[E_PLUGIN] += y[9]
+    return status, status_t, ev, tau_ev, xr, vr, Xc, Vc, dsub, maxF, t_maxF, j_sample
+
+
+@njit(cache=True)
 def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_cap):
     """Run n_transient + n_record excitation periods from state0; return the records.
 
@@ -1971,10 +2348,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     stick_time = 0.0
     n_stick = 0
     if n_record > 0 and n_transient == 0:
-        periods[0, P_XR0] = xr
-        periods[0, P_VR0] = vr
-        periods[0, P_VM0] = Vc + vr
-        periods[0, P_VC0] = Vc
+        open_period(periods[0], xr, vr, Vc)
     E_at_record = stored_energy(p, xr, vr, Vc) + 0.5 * p[I_KS] * dsub * dsub if n_transient == 0 else 0.0
     energy[E_START] = E_at_record
     rec_t0 = n_transient * T
@@ -2311,238 +2685,12 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             dsub = d1
         else:
             # ---------------- adaptive segment: speed-dependent law above V_min (DOP853, dense output)
-            sg = 1.0 if (shell == FAST_POS or shell == SLIP_POS) else -1.0
-            # a shell stuck on a rigid wall comes here only with a plugin force: it is held (V_c = 0).
-            # With a plugin the right-hand side and events are seg_rhs / seg_event_value; without, rk_rhs /
-            # rk_event_value are called directly: a plugin call inside them keeps LLVM from inlining
-            # them here (measured: the speed-law slips 40 % slower), so the branch sits at the call sites.
-            held = shell == STICK
-            t0 = period * T
-            # a slip (not fast) mode here is a general linear mode with nearly defective eigenvectors:
-            # its events are the slip's end (V_c = 0) and V_min
-            rk_slow = shell == SLIP_POS or shell == SLIP_NEG
-            vlo = 0.0 if rk_slow else p[I_VFAST]
-            vhi = p[I_VFAST] if rk_slow else np.inf
-            w0 = math.sqrt(K * (1.0 / Mm + 1.0 / Mc))
-            wmax = w0
-            if harmonic:
-                wmax = max(wmax, TWO_PI * f)
-            if compliant:
-                if shell == PATCH_STICK:
-                    sg = 0.0
-                    wmax = max(wmax, math.sqrt((K + p[I_KS]) / Mc + K / Mm))
-                elif p[I_CS] > 0.0:
-                    wmax = max(wmax, p[I_KS] / p[I_CS])
-            hmax = TWO_PI / wmax / 2.0
-            y[0] = xr
-            y[1] = vr
-            y[2] = Vc
-            y[3] = Xc
-            for i in range(4, NY):
-                y[i] = 0.0
-            y[8] = dsub
-            tau = 0.0
-            hh = hmax * 0.1
-            if plug:
-                seg_rhs(p, contact, sg, held, s, t0, fe_level, y, k1, pq, pfail)
-            else:
-                rk_rhs(p, contact, sg, s, fe_level, y, k1)
-            atol_x = rtol * p[I_XS]
-            atol_v = rtol * p[I_VS]
-            nsteps = 0
-            rk_rej = False
-            rk_err_old = 0.0
-            rk_h_old = 1.0
-            g0 = np.zeros(4)
-            for j in range(4):
-                g0[j] = rk_event_value(p, contact, sg, vlo, vhi, j, y)
-            Fa = K * y[0] + Cd * y[1] + F0
-            dFa = K * k1[0] + Cd * k1[1]
-            while True:
-                nsteps += 1
-                if nsteps > max_steps:
-                    status = STATUS_RKFAIL
-                    status_t = period * T + s + tau
-                    break
-                hh = min(hh, hmax, tau_end - tau)
-                sa = s + tau
-                dop853_step(p, contact, sg, sa, hh, fe_level, y, k1, KD, yt, y1, k7, plug, held, t0, pq, pfail)
-                if pfail[0] != 0.0:
-                    status = STATUS_PLUGIN
-                    status_t = t0 + sa
-                    break
-                err = dop853_error(KD, hh, y, y1, rtol, atol_x, atol_v)
-                if err > 1.0:
-                    hh *= max(0.2, 0.9 * err ** -RK_ORDER_EXP)
-                    rk_rej = True
-                    continue
-                # dense output: computed when a step needs it (events, F_i extrema, samples)
-                rc_ok = False
-                # events
-                th_ev = 2.0
-                e_ev = -1
-                for j in range(4):
-                    if plug:
-                        g1 = seg_event_value(p, contact, sg, held, vlo, vhi, j, y1, t0 + sa + hh, pq, pfail)
-                    else:
-                        g1 = rk_event_value(p, contact, sg, vlo, vhi, j, y1)
-                    lo = 0.0
-                    hi = -1.0
-                    if g1 < 0.0:
-                        hi = 1.0
-                    elif j < 2 and g1 != 1.0:
-                        # grazing: the contact function's derivative is +-v_r
-                        dsa = k1[0] if ((contact == 0 and j == 1) or contact == 1) else -k1[0]
-                        dsb = k7[0] if ((contact == 0 and j == 1) or contact == 1) else -k7[0]
-                        if dsa < 0.0 and dsb > 0.0:
-                            if not rc_ok:
-                                dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail)
-                                rc_ok = True
-                            a_ = 0.0
-                            b_ = 1.0
-                            for _ in range(60):
-                                mth = 0.5 * (a_ + b_)
-                                # derivative from the interpolant (central difference)
-                                dense_eval(rc, min(mth + 1e-7, 1.0), yd)
-                                gp = rk_event_value(p, contact, sg, vlo, vhi, j, yd)
-                                dense_eval(rc, max(mth - 1e-7, 0.0), yd)
-                                gm_ = rk_event_value(p, contact, sg, vlo, vhi, j, yd)
-                                if gp - gm_ < 0.0:
-                                    a_ = mth
-                                else:
-                                    b_ = mth
-                            dense_eval(rc, 0.5 * (a_ + b_), yd)
-                            if rk_event_value(p, contact, sg, vlo, vhi, j, yd) < -tol_x:
-                                hi = 0.5 * (a_ + b_)
-                    if hi > 0.0:
-                        if not rc_ok:
-                            dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail)
-                            rc_ok = True
-                        a_ = lo
-                        b_ = hi
-                        for _ in range(80):
-                            mth = 0.5 * (a_ + b_)
-                            dense_eval(rc, mth, yd)
-                            if plug:
-                                gmid = seg_event_value(p, contact, sg, held, vlo, vhi, j, yd, t0 + sa + mth * hh,
-                                                       pq, pfail)
-                            else:
-                                gmid = rk_event_value(p, contact, sg, vlo, vhi, j, yd)
-                            if gmid >= 0.0:
-                                a_ = mth
-                            else:
-                                b_ = mth
-                            if b_ - a_ < 1e-16:
-                                break
-                        if b_ < th_ev:
-                            th_ev = b_
-                            e_ev = j
-                th_stop = 1.0 if e_ev < 0 else th_ev
-                if th_stop < 1.0:
-                    dense_eval(rc, th_stop, y1)
-                # F_i extrema
-                if recording:
-                    Fb = K * y1[0] + Cd * y1[1] + F0
-                    dFb = K * k7[0] + Cd * k7[1]
-                    if dFa * dFb < 0.0:
-                        if not rc_ok:
-                            dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail)
-                            rc_ok = True
-                        a_ = 0.0
-                        b_ = th_stop
-                        sgnF = 1.0 if dFa > 0 else -1.0
-                        for _ in range(60):
-                            m1 = a_ + (b_ - a_) * 0.381966
-                            m2 = a_ + (b_ - a_) * 0.618034
-                            dense_eval(rc, m1, yd)
-                            f1 = sgnF * (K * yd[0] + Cd * yd[1] + F0)
-                            dense_eval(rc, m2, yd)
-                            f2 = sgnF * (K * yd[0] + Cd * yd[1] + F0)
-                            if f1 > f2:
-                                b_ = m2
-                            else:
-                                a_ = m1
-                        dense_eval(rc, 0.5 * (a_ + b_), yd)
-                        Fm = abs(K * yd[0] + Cd * yd[1] + F0)
-                        if Fm > maxF:
-                            maxF = Fm
-                            t_maxF = period * T + sa + 0.5 * (a_ + b_) * hh
-                    if abs(Fb) > maxF:
-                        maxF = abs(Fb)
-                        t_maxF = period * T + sa + th_stop * hh
-                    Fa = Fb
-                    dFa = dFb
-                # samples
-                if recording and n_samples > 0:
-                    while j_sample < n_samples:
-                        ts = sample_times[j_sample] - (period - n_transient) * T
-                        if ts >= sa + th_stop * hh:
-                            break
-                        th = (ts - sa) / hh
-                        if th < 0.0:
-                            th = 0.0
-                        if not rc_ok:
-                            dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail)
-                            rc_ok = True
-                        dense_eval(rc, th, yd)
-                        row = samples[j_sample]
-                        row[S_T] = rec_t0 + sample_times[j_sample]
-                        row[S_XM] = yd[3] + yd[0]
-                        row[S_XC] = yd[3]
-                        row[S_VM] = yd[2] + yd[1]
-                        row[S_VC] = yd[2]
-                        row[S_XR] = yd[0]
-                        row[S_CONTACT] = contact
-                        row[S_STICK] = 1.0 if seg_stick else 0.0
-                        row[S_FI] = K * yd[0] + Cd * yd[1] + F0
-                        j_sample += 1
-                if e_ev >= 0:
-                    tau += th_stop * hh
-                    for i in range(NY):
-                        y[i] = y1[i]
-                    if held and e_ev >= 2:
-                        ev = EV_BREAK_POS if e_ev == 2 else EV_BREAK_NEG
-                    elif compliant and e_ev >= 2:
-                        if sg == 0.0:
-                            ev = EV_BREAK_POS if e_ev == 2 else EV_BREAK_NEG
-                        else:
-                            ev = EV_SLIP_END
-                    elif e_ev == 2:
-                        ev = EV_SLIP_END if rk_slow else EV_FAST_OFF
-                    elif e_ev == 3:
-                        ev = EV_FAST_ON
-                    elif contact == 0:
-                        ev = EV_FRONT_ON if e_ev == 0 else EV_BACK_ON
-                    elif contact == 1:
-                        ev = EV_FRONT_OFF
-                    else:
-                        ev = EV_BACK_OFF
-                    break
-                tau += hh
-                for i in range(NY):
-                    y[i] = y1[i]
-                    k1[i] = k7[i]
-                if tau >= tau_end:
-                    break
-                fac = rk_step_factor(err, rk_rej, rk_err_old, hh / rk_h_old)
-                rk_err_old = max(err, 1e-4)
-                rk_h_old = hh
-                hh *= fac
-                rk_rej = False
+            status, status_t, ev, tau_ev, xr, vr, Xc, Vc, dsub, maxF, t_maxF, j_sample = adaptive_segment(
+                p, contact, shell, s, tau_end, fe_level, period, T, xr, vr, Xc, Vc, dsub, rtol, max_steps,
+                recording, do_energy, maxF, t_maxF, sample_times, n_transient, samples, j_sample, rec_t0,
+                seg_stick, plug, pq, pfail, energy, y, y1, yt, k1, k7, rc, KD, yd)
             if status != STATUS_OK:
                 break
-            tau_ev = tau if ev != EV_NONE else tau_end
-            xr = y[0]
-            vr = y[1]
-            Vc = y[2]
-            Xc = y[3]
-            dsub = y[8]
-            if recording and do_energy:
-                energy[E_DRIVE] += y[4]
-                energy[E_DAMP] += y[5]
-                energy[E_CONTACT] += y[6]
-                energy[E_FRIC] += y[7]
-                energy[E_PLUGIN] += y[9]
 
         # ---------------- bookkeeping of the segment
         if recording and seg_stick:
@@ -2561,56 +2709,29 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             else:
                 zeno_count = 0
         t_glob = period * T + s
-        kind = 0
-        kind2 = 0
-        if ev == EV_FRONT_ON:
-            contact = 1
-            kind = K_FRONT_ON
+        if ev == EV_FRONT_ON or ev == EV_BACK_ON:
             if recording:
-                n_front += 1
-        elif ev == EV_BACK_ON:
-            contact = 2
-            kind = K_BACK_ON
-            if recording:
-                n_back += 1
-        elif ev == EV_FRONT_OFF:
-            contact = 0
-            kind = K_FRONT_OFF
-        elif ev == EV_BACK_OFF:
-            contact = 0
-            kind = K_BACK_OFF
-        new_shell = shell
-        fe_now = drive_force(p, s, fe_level)
+                if ev == EV_FRONT_ON:
+                    n_front += 1
+                else:
+                    n_back += 1
         # the plugin force on a shell at rest, counted in the stick test (zeros without a plugin)
+        fe_now = drive_force(p, s, fe_level)
         pFm, pFc, pdFc = 0.0, 0.0, 0.0
         if plug and ev != EV_NONE:
+            c_new = contact
+            if ev == EV_FRONT_ON:
+                c_new = 1
+            elif ev == EV_BACK_ON:
+                c_new = 2
+            elif ev == EV_FRONT_OFF or ev == EV_BACK_OFF:
+                c_new = 0
             if compliant:
                 _, pFc = plugin_force(pq, pfail, t_glob, xr, vr, Xc, Vc)
             else:
-                pFm, pFc, pdFc = plugin_stick_terms(p, pq, pfail, t_glob, contact, xr, vr, Xc, fe_now)
-        if compliant:
-            if ev == EV_BREAK_POS or ev == EV_BREAK_NEG:
-                new_shell = decide_patch(p, contact, xr, vr, Vc, dsub, fe_now, pFc)
-            elif ev == EV_SLIP_END:
-                # the patch stops with its force at the kinetic level (<= breakaway): it sticks; a force
-                # that keeps rising past the breakaway is a break event of the stuck patch
-                new_shell = PATCH_STICK
-        elif ev == EV_FRONT_ON or ev == EV_BACK_ON or ev == EV_FRONT_OFF or ev == EV_BACK_OFF:
-            if shell == STICK:
-                new_shell = decide_shell(p, contact, xr, vr, fe_now, pFm, pFc, pdFc)
-        elif ev == EV_BREAK_POS or ev == EV_BREAK_NEG:
-            new_shell = decide_shell(p, contact, xr, vr, fe_now, pFm, pFc, pdFc)
-        elif ev == EV_SLIP_END:
-            Vc = 0.0
-            new_shell = decide_shell(p, contact, xr, vr, fe_now, pFm, pFc, pdFc)
-        elif ev == EV_FAST_ON:
-            new_shell = FAST_POS if shell == SLIP_POS else FAST_NEG
-        elif ev == EV_FAST_OFF:
-            if p[I_VFAST] > 0.0:
-                new_shell = SLIP_POS if shell == FAST_POS else SLIP_NEG
-            else:
-                Vc = 0.0
-                new_shell = decide_shell(p, contact, xr, vr, fe_now, pFm, pFc, pdFc)
+                pFm, pFc, pdFc = plugin_stick_terms(p, pq, pfail, t_glob, c_new, xr, vr, Xc, fe_now)
+        new_shell, contact, kind, kind2, Vc, dsub, e_fric = shell_transition(
+            p, ev, shell, contact, xr, vr, Vc, dsub, fe_now, pFm, pFc, pdFc, pfail[0] != 0.0)
         if pfail[0] != 0.0:
             status = STATUS_PLUGIN
             status_t = t_glob
@@ -2619,34 +2740,11 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             status = STATUS_ILLPOSED
             status_t = t_glob
             break
-        if new_shell != shell and compliant:
-            if new_shell == PATCH_STICK:
-                kind2 = K_STICK
-                if recording:
-                    n_stick += 1
-            elif shell == PATCH_STICK:
-                kind2 = K_SLIP_FWD if new_shell == FAST_POS else K_SLIP_BWD
-                if p[I_CS] == 0.0:
-                    # c_s = 0: the massless patch jumps to the kinetic balance k_s d = sgn L at once;
-                    # the released spring energy is dissipated at the patch
-                    dnew = (1.0 if new_shell == FAST_POS else -1.0) * friction_level(p, 0.0, xr) / p[I_KS]
-                    if recording and do_energy:
-                        energy[E_FRIC] += 0.5 * p[I_KS] * (dsub * dsub - dnew * dnew)
-                    dsub = dnew
-            else:  # reversal without sticking
-                kind2 = K_SLIP_FWD if new_shell == FAST_POS else K_SLIP_BWD
-        elif new_shell != shell:
-            if new_shell == STICK:
-                kind2 = K_STICK
-                Vc = 0.0
-                if recording:
-                    n_stick += 1
-            elif (new_shell == SLIP_POS or new_shell == FAST_POS) and not (shell == SLIP_POS or shell == FAST_POS):
-                kind2 = K_SLIP_FWD
-            elif (new_shell == SLIP_NEG or new_shell == FAST_NEG) and not (shell == SLIP_NEG or shell == FAST_NEG):
-                kind2 = K_SLIP_BWD
-            if new_shell != STICK and shell == STICK:
-                Vc = 0.0
+        if recording:
+            if kind2 == K_STICK:
+                n_stick += 1
+            if do_energy:
+                energy[E_FRIC] += e_fric
         shell = new_shell
         if ev == EV_NONE and not harmonic:
             kind = K_DRIVE_OFF if s_end == DT and s_end < T else 0
@@ -2665,15 +2763,8 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
         # ---------------- period end
         if ev == EV_NONE and s_end == T:
             if recording:
-                q = period - n_transient
-                periods[q, P_DISP] = Xc - Xc_start
-                periods[q, P_NFRONT] = n_front
-                periods[q, P_NBACK] = n_back
-                periods[q, P_MAXF] = maxF
-                periods[q, P_TMAXF] = t_maxF
-                periods[q, P_STICK] = stick_time / T
-                periods[q, P_XC0] = Xc_start
-                periods[q, P_NSTICK] = n_stick
+                close_period(periods[period - n_transient], Xc_start, Xc, n_front, n_back, maxF, t_maxF,
+                             stick_time / T, n_stick)
             period += 1
             s = 0.0
             Xc_start = Xc
@@ -2683,11 +2774,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             stick_time = 0.0
             n_stick = 0
             if period >= n_transient and period < n_total:
-                q = period - n_transient
-                periods[q, P_XR0] = xr
-                periods[q, P_VR0] = vr
-                periods[q, P_VM0] = Vc + vr
-                periods[q, P_VC0] = Vc
+                open_period(periods[period - n_transient], xr, vr, Vc)
                 if period == n_transient:
                     energy[E_START] = stored_energy(p, xr, vr, Vc) + 0.5 * p[I_KS] * dsub * dsub
                 if not harmonic and rec_events:
