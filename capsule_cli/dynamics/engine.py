@@ -57,8 +57,9 @@ Kernels (each compiled, one job)
   keeps the period's bookkeeping.
 * exact segments: :func:`setup_linear` / :func:`setup_general` (the closed forms), the
   event scan of a general mode :func:`locate_event` with :func:`refine_root`. The base modes'
-  scan stays inline in the driver: as its own kernel it cost 23 % per period on the bench's
-  hot path (measured, session 5), since it runs once per event at a few microseconds.
+  scan stays inline in the driver: it runs once per event, at a few microseconds, and as its own
+  kernel it cost 23 % per period on the bench's hot path (session 5); even inlined by numba
+  (``inline="always"``) it cost 8-12 % (measured back to back, issue 9 item 5).
 * :func:`adaptive_segment`: the nonlinear mode (DOP853 :func:`dop853_step`,
   :func:`dop853_error`, dense output :func:`dop853_dense`; events on the dense output).
 * :func:`shell_transition`: the set-valued friction law at an event (stick or slip from the
