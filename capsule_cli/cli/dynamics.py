@@ -71,6 +71,21 @@ WAVE_OPT = typer.Option("harmonic", "--waveform", help="harmonic P_d cos(2 pi f 
 DUTY_OPT = typer.Option(0.5, "--duty", help="square-wave duty cycle D in (0, 1) [-]")
 FRIC_OPT = typer.Option("coulomb", "--friction", help=FRICTION_HELP)
 PF_OPT = typer.Option(None, "--Pf-N", help="Coulomb friction level P_f [N] (default: the parameter set's Pf_N)")
+SETTLE_OPT = typer.Option(None, "--settle-tol", help="end each point's transient early, by whole orbits, once its "
+                          "state at phase 0 repeats after 1-8 periods within this fraction of the state scales [-] "
+                          "(0: run every transient period; default: settle_tol of configs/bench/fig19.yaml)")
+
+
+def _settle_tol(value):
+    """The settled-transient tolerance of a sweep or map: the option, else the maps' config value."""
+    from ..steps.dynamics import map_settle_tol
+
+    v = map_settle_tol() if value is None else float(value)
+    if not (math.isfinite(v) and 0.0 <= v <= 1e-6):
+        raise InputError(f"--settle-tol {v:g}: expected 0 (off) or a tolerance up to 1e-6")
+    return v
+
+
 LIT_OPT = typer.Option(False, "--literal", help="eq22/eq23 exactly as written (eq22 is ill-posed: the run stops "
                        "with a clear error)")
 STATIC_OPT = typer.Option(None, "--static-N", help="Coulomb breakaway (static) level [N] when it differs from the "
@@ -162,6 +177,7 @@ def register(app: typer.Typer) -> None:
         initial_state: str = typer.Option("0,0,0", "--initial-state", help="fixed initial condition at phase 0: "
                                           "x_r [mm], v_r [mm/s], V_c [mm/s], comma-separated (every point for "
                                           "rest, the first point for up/down)"),
+        settle_tol: Optional[float] = SETTLE_OPT,
         quiet: bool = QUIET,
     ):
         """Bifurcation / progression sweep over one parameter (Poincare points, velocity, impacts, A_f)."""
@@ -177,11 +193,13 @@ def register(app: typer.Typer) -> None:
         m, d, fr = _setup(model, set_, waveform, f_Hz, Pd_N, duty, friction, Pf_N, literal, v_min_mm_s,
                           law_speed_unit, static_N)
         state0 = _parse_state(initial_state)
+        settle_tol = _settle_tol(settle_tol)
         values = np.linspace(start, stop, num)
         compile_notice(quiet, ("run_many",))
         with exit_on_interrupt(), task(f"sweep {param}", num, quiet) as advance:
             meta = sweep_to_dir(out, m, d, fr, param, values, protocol, transient_periods, periods,
-                                model_name=model, label=label, progress=advance, state0=state0)
+                                model_name=model, label=label, progress=advance, state0=state0,
+                                settle_tol=settle_tol)
         if not quiet:
             typer.echo(f"{out}: {meta['n_points']} points ({protocol})", err=True)
 
@@ -216,6 +234,7 @@ def register(app: typer.Typer) -> None:
         rk_rtol: Optional[float] = typer.Option(None, "--rk-rtol", help="relative tolerance of the speed-law "
                                                 "(eq22/eq23) panels' adaptive integration [-] (default: rk_rtol of "
                                                 "configs/bench/fig19.yaml; Coulomb panels are exact)"),
+        settle_tol: Optional[float] = SETTLE_OPT,
         quiet: bool = QUIET,
     ):
         """Magnification factor maps A_f = max|F_i|/P_d over (P_d, f) (seed 000 eq 24, Fig 19)."""
@@ -249,6 +268,7 @@ def register(app: typer.Typer) -> None:
                 rk_rtol = map_rk_rtol()
             if not (math.isfinite(rk_rtol) and 1e-14 <= rk_rtol <= 1e-4):
                 raise InputError(f"--rk-rtol {rk_rtol:g}: expected a tolerance in [1e-14, 1e-4]")
+            settle_tol = _settle_tol(settle_tol)
             m, _ = resolve_model(model, _parse_set(set_))
             Pd = np.linspace(Pd_start_N, Pd_stop_N, Pd_num)
             f = np.linspace(f_start_Hz, f_stop_Hz, f_num)
@@ -265,11 +285,11 @@ def register(app: typer.Typer) -> None:
             compile_notice(quiet)
             with exit_on_interrupt(), task("magnify", len(frictions) * Pd.size * f.size, quiet) as advance:
                 df = magnify_table(m, Pd, f, frictions, protocol, transient_periods, periods, progress=advance,
-                                   rk_rtol=rk_rtol)
+                                   rk_rtol=rk_rtol, settle_tol=settle_tol)
             prov = provenance(model_name=model, protocol=protocol, transient_periods=transient_periods,
                               periods=periods, frictions=[str(x) for x in frictions],
                               Pd_grid_N=[Pd_start_N, Pd_stop_N, Pd_num], f_grid_Hz=[f_start_Hz, f_stop_Hz, f_num],
-                              Pd_rows=rows, rk_rtol=rk_rtol)
+                              Pd_rows=rows, rk_rtol=rk_rtol, settle_tol=settle_tol)
         write_table(df, out, MAGNIFY, prov)
         if figure is not None:
             from ..plots.dynamics import magnify_figure

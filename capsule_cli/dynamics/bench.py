@@ -257,6 +257,7 @@ def run_fig19_bench(Pd_num: int | None = None, f_num: int | None = None, frictio
     nt, nr = int(cfg["transient_periods"]), int(cfg["recorded_periods"])
     specs = list(frictions or cfg["frictions"])
     rk_rtol = float(cfg["rk_rtol"])  # the maps' tolerance of the speed-law panels' adaptive segment
+    settle_tol = float(cfg.get("settle_tol", 0.0))  # the maps' settled-transient test
     # warm up: load (or compile) the engine outside the timings
     magnify_arrays(model, Pd[:1], f[:2], friction_preset("coulomb", 0.007), cfg["protocol"], 2, 1)
     per_fr = {}
@@ -266,7 +267,8 @@ def run_fig19_bench(Pd_num: int | None = None, f_num: int | None = None, frictio
     for spec in specs:
         label, fr, _ = magnify_friction(spec)
         t0 = time.perf_counter()
-        a = magnify_arrays(model, Pd, f, fr, cfg["protocol"], nt, nr, progress=progress, rk_rtol=rk_rtol)
+        a = magnify_arrays(model, Pd, f, fr, cfg["protocol"], nt, nr, progress=progress, rk_rtol=rk_rtol,
+                           settle_tol=settle_tol)
         per_fr[label] = time.perf_counter() - t0
         total += per_fr[label]
         i, j = np.unravel_index(np.nanargmax(a["Af"]), a["Af"].shape)
@@ -295,6 +297,9 @@ def run_fig19_bench(Pd_num: int | None = None, f_num: int | None = None, frictio
                  and len(specs) == len(cfg["frictions"])},
         "fig19_wall_s": total,
         "fig19_periods_per_s": periods_total / total,
+        "fig19_periods_per_s_note": "periods of the maps (transient + recorded per point) per second of wall time; "
+                                    "transient periods skipped once a point has settled on a periodic orbit "
+                                    "(settle_tol) count as run",
         "fig19_wall_s_extrapolated": total * full_points / n_points,
         "fig19_wall_s_extrapolated_note": "wall time of the run grid scaled by points to the full "
                                           f"{cfg['Pd_num']} x {cfg['f_num']} x {len(cfg['frictions'])} set",
@@ -309,6 +314,9 @@ def run_fig19_bench(Pd_num: int | None = None, f_num: int | None = None, frictio
         "solve_ivp_over_engine_median": float(np.median([v["solve_ivp_over_engine"] for v in sample.values()])),
         "rk_rtol": rk_rtol,
         "rk_rtol_note": "relative tolerance of the adaptive (speed-law) segment in the maps, configs/bench/fig19.yaml",
+        "settle_tol": settle_tol,
+        "settle_tol_note": "settled-transient tolerance of the maps (configs/bench/fig19.yaml; 0: every transient "
+                           "period run)",
         "threads": int(numba.get_num_threads()),
         "machine": {"python": platform.python_version(), "processor": platform.processor() or platform.machine()},
     }

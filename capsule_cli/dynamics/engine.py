@@ -95,8 +95,10 @@ MAX_PLUG_PARAMS = 16
 N_PARAMS = I_PLUG_P0 + MAX_PLUG_PARAMS
 
 # options vector
-O_NPER, O_ENERGY, O_RTOL, O_ZENO, O_MAXSTEPS, O_EXACT = 0, 1, 2, 3, 4, 5
-N_OPTS = 6
+O_NPER, O_ENERGY, O_RTOL, O_ZENO, O_MAXSTEPS, O_EXACT, O_SETTLE = 0, 1, 2, 3, 4, 5, 6
+N_OPTS = 7
+N_FINAL = 7  # final-state record: x_r, v_r, X_c, V_c, contact, shell, periods integrated
+SETTLE_ORBIT_MAX = 8  # longest periodic orbit [excitation periods] the settled-transient test recognises
 
 # shell states
 STICK, SLIP_POS, SLIP_NEG, FAST_POS, FAST_NEG = 0, 1, 2, 3, 4
@@ -1836,6 +1838,31 @@ def _grow(ev, n):
 
 
 @njit(cache=True)
+def settled_orbit(hist, k, xr, vr, Vc, dsub, contact, shell, tol_x, tol_v):
+    """Store the state at the start of period k (phase 0) in the ring buffer ``hist`` and return the
+    length q (1..SETTLE_ORBIT_MAX periods) of the periodic orbit it has settled on: the state of
+    period k - q equal to this one within tol_x [m] (x_r, d) and tol_v [m/s] (v_r, V_c), in the
+    same contact and shell state (0: not settled). The system is autonomous in the phase and
+    invariant under a shift of X_c, so from then on each q periods repeat up to those tolerances."""
+    n = hist.shape[0]
+    row = hist[k % n]
+    row[0] = xr
+    row[1] = vr
+    row[2] = Vc
+    row[3] = dsub
+    row[4] = contact
+    row[5] = shell
+    for q in range(1, n):
+        if k - q < 0:
+            break
+        o = hist[(k - q) % n]
+        if o[4] == contact and o[5] == shell and abs(o[0] - xr) <= tol_x and abs(o[1] - vr) <= tol_v \
+                and abs(o[2] - Vc) <= tol_v and abs(o[3] - dsub) <= tol_x:
+            return q
+    return 0
+
+
+@njit(cache=True)
 def open_period(row, xr, vr, Vc):
     """Record the state at the start of a recorded excitation period in its row of the period table:
     x_r [m], v_r [m/s], the magnet's and the shell's velocities [m/s]."""
@@ -2217,7 +2244,8 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
 
     state0 = [x_r, v_r, X_c, V_c] [m, m/s] at phase 0 (time 0).
     Returns (status, status_time_s, samples, n_samples_written, events, n_events,
-    periods, energy, final_state) where final_state = [x_r, v_r, X_c, V_c, contact, shell].
+    periods, energy, final_state) where final_state = [x_r, v_r, X_c, V_c, contact, shell,
+    periods integrated (fewer than n_transient + n_record when a settled transient was cut, settle_tol)].
     """
     nper = opts[O_NPER]
     do_energy = opts[O_ENERGY] > 0.5
@@ -2225,6 +2253,11 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     exact_general = opts[O_EXACT] > 0.5
     max_steps = int(opts[O_MAXSTEPS])
     rtol = opts[O_RTOL]
+    # settled transient: end it early once the phase-0 state repeats (not with a plugin force, which
+    # may depend on time and position)
+    settle = opts[O_SETTLE] > 0.0 and p[I_PLUG] < 0.5 and n_transient > 0
+    settle_x = opts[O_SETTLE] * p[I_XS]
+    settle_v = opts[O_SETTLE] * p[I_VS]
     f = p[I_F]
     T = 1.0 / f
     harmonic = p[I_WAVE] < 0.5
@@ -2244,7 +2277,10 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     events = np.zeros((ev_cap if ev_cap > 0 else 64, 2))
     periods = np.zeros((max(n_record, 0), N_PERIOD_COLS))
     energy = np.zeros(N_ENERGY)
-    final = np.zeros(6)
+    final = np.zeros(N_FINAL)
+    n_skipped = 0  # transient periods skipped once settled (settle_tol)
+    hist = np.zeros((SETTLE_ORBIT_MAX + 1, 6))  # phase-0 states of the last periods (settled transient)
+    Xc_hist = np.zeros(SETTLE_ORBIT_MAX + 1)
 
     coef = np.zeros((N_ROWS, NB))
     md = np.zeros(8)
@@ -2340,6 +2376,9 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     status = STATUS_OK
     status_t = 0.0
     zeno_count = 0
+    if settle:
+        Xc_hist[0] = Xc
+        settled_orbit(hist, 0, xr, vr, Vc, dsub, contact, shell, settle_x, settle_v)
     # period accumulators
     Xc_start = Xc
     n_front = 0
@@ -2774,6 +2813,19 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             maxF = -1.0
             stick_time = 0.0
             n_stick = 0
+            if settle and period < n_transient:
+                Xc_hist[period % Xc_hist.shape[0]] = Xc
+                q = settled_orbit(hist, period, xr, vr, Vc, dsub, contact, shell, settle_x, settle_v)
+                if q > 0:
+                    # skip whole orbits of the rest of the transient; the shell advances by the orbit's
+                    # displacement each time (the recorded periods start at the same phase of the orbit)
+                    m = (n_transient - period) // q
+                    if m > 0:
+                        Xc += m * (Xc - Xc_hist[(period - q) % Xc_hist.shape[0]])
+                        period += m * q
+                        n_skipped += m * q
+                        Xc_start = Xc
+                        settle = False
             if period >= n_transient and period < n_total:
                 open_period(periods[period - n_transient], xr, vr, Vc)
                 if period == n_transient:
@@ -2792,6 +2844,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     final[3] = Vc
     final[4] = contact
     final[5] = shell
+    final[6] = period - n_skipped
     return status, status_t, samples, j_sample, events, n_ev, periods, energy, final
 
 
@@ -2800,13 +2853,13 @@ def run_many(P, opts, states0, n_transient, n_record):
     """Run many independent points in parallel (fixed initial conditions, no samples/events).
 
     P: (n, N_PARAMS); states0: (n, 4). Returns (status (n,), periods (n, n_record, cols),
-    energy (n, N_ENERGY), final (n, 6)).
+    energy (n, N_ENERGY), final (n, N_FINAL)).
     """
     n = P.shape[0]
     status = np.zeros(n, dtype=np.int64)
     periods = np.zeros((n, n_record, N_PERIOD_COLS))
     energy = np.zeros((n, N_ENERGY))
-    final = np.zeros((n, 6))
+    final = np.zeros((n, N_FINAL))
     for i in prange(n):
         st, st_t, sm, ns, ev, nev, per, en, fin = run_core(P[i], opts, states0[i], n_transient, n_record,
                                                           1.0, 0, 0)

@@ -418,7 +418,11 @@ class EngineOptions:
     slip's DOP853), zeno_max (zero-length events tolerated in a row), rk_max_steps (per segment),
     exact_general_modes
     (solve the linear modes of drag, tilt and substrate compliance exactly; False integrates them on
-    the adaptive path, a cross-check)."""
+    the adaptive path, a cross-check), settle_tol (0: run every transient period; > 0: end the
+    transient early, by whole orbits, once the state at phase 0 repeats after 1 to 8 periods within
+    settle_tol times the state scales, in the same contact and shell state: the steady state is then
+    reached, and the recorded periods are those of the full transient up to that tolerance; never
+    with a plugin force)."""
 
     samples_per_fast_period: float = 8.0
     energy: bool = True
@@ -426,6 +430,7 @@ class EngineOptions:
     zeno_max: int = 200
     rk_max_steps: int = 2_000_000
     exact_general_modes: bool = True
+    settle_tol: float = 0.0
     extra: dict = field(default_factory=dict)
 
     def pack(self) -> np.ndarray:
@@ -436,4 +441,5 @@ class EngineOptions:
         o[E.O_ZENO] = self.zeno_max
         o[E.O_MAXSTEPS] = self.rk_max_steps
         o[E.O_EXACT] = 1.0 if self.exact_general_modes else 0.0
+        o[E.O_SETTLE] = self.settle_tol
         return o

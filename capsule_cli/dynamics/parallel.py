@@ -79,7 +79,7 @@ def _next_size(done: int, elapsed_s: float, target_s: float, remaining: int, min
 
 def run_points(P: np.ndarray, opts: np.ndarray, states0: np.ndarray, n_transient: int, n_record: int,
                progress=None, target_chunk_s: float = TARGET_CHUNK_S, chunk: int | None = None):
-    """Run independent points in chunks; return (status (n,), periods (n, n_record, cols), final (n, 6)).
+    """Run independent points in chunks; return (status (n,), periods (n, n_record, cols), final (n, N_FINAL)).
 
     P: (n, N_PARAMS) engine parameter vectors [SI]; states0: (n, 4) initial states [SI].
     ``chunk`` fixes the chunk size [points]; by default the size adapts so a chunk takes
@@ -91,7 +91,7 @@ def run_points(P: np.ndarray, opts: np.ndarray, states0: np.ndarray, n_transient
     n = P.shape[0]
     status = np.zeros(n, dtype=np.int64)
     periods = np.zeros((n, int(n_record), E.N_PERIOD_COLS))
-    final = np.zeros((n, 6))
+    final = np.zeros((n, E.N_FINAL))
     try:
         import numba
         minimum = int(numba.get_num_threads())

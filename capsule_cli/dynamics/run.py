@@ -30,7 +30,7 @@ class RunResult:
     events: pd.DataFrame
     periods: pd.DataFrame
     energy: dict
-    final_state: np.ndarray  # [x_r, v_r, X_c, V_c, contact, shell] at the end (phase 0)
+    final_state: np.ndarray  # [x_r, v_r, X_c, V_c, contact, shell] at the end (phase 0), periods integrated
     frequency_Hz: float
     params: np.ndarray = field(repr=False, default=None)
 

@@ -167,15 +167,19 @@ def simulate_to_dir(out: Path, model: CapsuleModel, drive: Drive, friction: Fric
 
 def sweep_to_dir(out: Path, model: CapsuleModel, drive: Drive, friction: Friction, param: str, values,
                  protocol: str, transient_periods: int, periods: int, model_name: str = "", label: str = "",
-                 progress=None, state0=None) -> dict:
+                 progress=None, state0=None, settle_tol: float | None = None) -> dict:
     """Run a sweep; write ``points.parquet``, ``sweep.parquet`` (Poincare rows) and ``sweep.json``.
 
     state0 = [x_r, v_r, V_c] [m, m/s] is the initial state of every point (protocol rest) or of the
-    first point (up/down); default rest."""
+    first point (up/down); default rest. settle_tol: the settled-transient tolerance
+    (EngineOptions.settle_tol); None: the maps' (:func:`map_settle_tol`), so that a sweep point and a
+    map point are the same computation."""
+    settle_tol = float(map_settle_tol() if settle_tol is None else settle_tol)
     res = run_sweep(model, drive, friction, param, values, protocol, transient_periods, periods, progress=progress,
-                    state0=state0)
+                    state0=state0, options=EngineOptions(settle_tol=settle_tol))
     prov = _prov(model_name=model_name, model=model, drive=drive, friction=friction, parameter=param,
                  protocol=protocol, transient_periods=transient_periods, periods=periods, label=label,
+                 settle_tol=settle_tol,
                  initial_state_SI=[0.0, 0.0, 0.0] if state0 is None else [float(x) for x in state0])
     out = Path(out)
     write_table(res.points, out / "points.parquet", SWEEP_POINTS, prov)
@@ -211,6 +215,12 @@ def map_rk_rtol() -> float:
     return float(load_fig19()["rk_rtol"])
 
 
+def map_settle_tol() -> float:
+    """The maps' settled-transient tolerance [-] (``settle_tol`` of configs/bench/fig19.yaml, where its
+    measured effect on A_f is stated; EngineOptions.settle_tol; 0 runs every transient period)."""
+    return float(load_fig19().get("settle_tol", 0.0))
+
+
 def load_fig19(path: Path | None = None) -> dict:
     """Return the seed 000 Fig 19 set (configs/bench/fig19.yaml): frictions, grid, periods, protocol."""
     from ..config import configs_dir, read_yaml
@@ -220,13 +230,14 @@ def load_fig19(path: Path | None = None) -> dict:
 
 def magnify_arrays(model: CapsuleModel, Pd_values, f_values, friction: Friction, protocol: str,
                    transient_periods: int, periods: int, progress=None, target_chunk_s: float | None = None,
-                   rk_rtol: float | None = None):
+                   rk_rtol: float | None = None, settle_tol: float | None = None):
     """A_f and friends over the (P_d, f) grid of one friction, as (n_Pd, n_f) arrays.
 
     rest: every point from rest, all points in parallel chunks; up/down: continuation along f
     (increasing / decreasing) from rest at the first frequency, all P_d rows in parallel.
     ``rk_rtol``: relative tolerance of the adaptive segment (speed-law slip, eqs 22-23); None: the
-    maps' tolerance (:func:`map_rk_rtol`). Exact (Coulomb, fixed-shell) modes ignore it.
+    maps' tolerance (:func:`map_rk_rtol`). Exact (Coulomb, fixed-shell) modes ignore it. ``settle_tol``:
+    the settled-transient tolerance (EngineOptions.settle_tol); None: the maps' (:func:`map_settle_tol`).
     Returns a dict of arrays Af, max_Fi_N, impacts_per_period, velocity_mm_s.
     """
     from ..dynamics import engine as E
@@ -256,7 +267,8 @@ def magnify_arrays(model: CapsuleModel, Pd_values, f_values, friction: Friction,
     for i, a in enumerate(Pd):
         for jj, j in enumerate(order):
             P[i, jj] = pack_params(model, Drive(float(a), float(f[j])), friction)
-    opts = EngineOptions(energy=False, rk_rtol=float(map_rk_rtol() if rk_rtol is None else rk_rtol)).pack()
+    opts = EngineOptions(energy=False, rk_rtol=float(map_rk_rtol() if rk_rtol is None else rk_rtol),
+                         settle_tol=float(map_settle_tol() if settle_tol is None else settle_tol)).pack()
     if protocol == "rest":
         st, per, _ = run_points(P.reshape(-1, E.N_PARAMS), opts, np.zeros((P.shape[0] * P.shape[1], 4)),
                                 int(transient_periods), int(periods), progress=progress,
@@ -282,11 +294,12 @@ def magnify_arrays(model: CapsuleModel, Pd_values, f_values, friction: Friction,
 
 def magnify_table(model: CapsuleModel, Pd_values, f_values, frictions, protocol: str, transient_periods: int,
                   periods: int, progress=None, timings: dict | None = None,
-                  rk_rtol: float | None = None) -> pd.DataFrame:
+                  rk_rtol: float | None = None, settle_tol: float | None = None) -> pd.DataFrame:
     """Return A_f over (P_d, f) for each friction (Coulomb level [N], inf, 'eq22', 'eq23'), one table.
 
     Rows: frictions in the given order, then P_d, then f (ascending as given). ``timings``, if
-    given, receives the wall time [s] of each friction by label. ``rk_rtol``: see :func:`magnify_arrays`.
+    given, receives the wall time [s] of each friction by label. ``rk_rtol``, ``settle_tol``: see
+    :func:`magnify_arrays`.
     """
     import pandas as pd
     import time
@@ -301,7 +314,7 @@ def magnify_table(model: CapsuleModel, Pd_values, f_values, frictions, protocol:
     for label, fr, pf in parsed:
         t0 = time.perf_counter()
         a = magnify_arrays(model, Pd, f, fr, protocol, transient_periods, periods, progress=progress,
-                           rk_rtol=rk_rtol)
+                           rk_rtol=rk_rtol, settle_tol=settle_tol)
         if timings is not None:
             timings[label] = time.perf_counter() - t0
         parts.append((label, pf, a))
