@@ -88,14 +88,13 @@ def test_magnify_chunks_gathered_equal_unchunked(tmp_path, protocol):
 def test_magnify_table_rows_equal_the_sweep_points():
     """A magnify row is the same computation as a sweep point over f from rest (same engine calls and
     options: the maps' settled-transient tolerance)."""
-    from capsule_cli.dynamics.model import EngineOptions
+    from capsule_cli.dynamics.model import STEADY_SETTLE_TOL, EngineOptions
     from capsule_cli.dynamics.sweep import run_sweep
-    from capsule_cli.steps.dynamics import map_settle_tol
 
     f = np.array([24.0, 30.0, 36.0])
     df = magnify_table(MODEL, [0.15], f, ["2.5"], "rest", 50, 8)
     sw = run_sweep(MODEL, Drive(0.15, 24.0), friction_preset("coulomb", 2.5), "f_Hz", f, "rest", 50, 8,
-                   options=EngineOptions(settle_tol=map_settle_tol()))
+                   options=EngineOptions(settle_tol=STEADY_SETTLE_TOL))
     assert np.array_equal(df["Af"].to_numpy(), sw.points["Af"].to_numpy())
     assert np.array_equal(df["velocity_mm_s"].to_numpy(), sw.points["velocity_mm_s"].to_numpy())
 

@@ -73,14 +73,14 @@ FRIC_OPT = typer.Option("coulomb", "--friction", help=FRICTION_HELP)
 PF_OPT = typer.Option(None, "--Pf-N", help="Coulomb friction level P_f [N] (default: the parameter set's Pf_N)")
 SETTLE_OPT = typer.Option(None, "--settle-tol", help="end each point's transient early, by whole orbits, once its "
                           "state at phase 0 repeats after 1-8 periods within this fraction of the state scales [-] "
-                          "(0: run every transient period; default: settle_tol of configs/bench/fig19.yaml)")
+                          "(0: run every transient period; default 1e-12, the steady-state runs' STEADY_SETTLE_TOL)")
 
 
 def _settle_tol(value):
-    """The settled-transient tolerance of a sweep or map: the option, else the maps' config value."""
-    from ..steps.dynamics import map_settle_tol
+    """The settled-transient tolerance of a sweep or map: the option, else STEADY_SETTLE_TOL."""
+    from ..dynamics.model import STEADY_SETTLE_TOL
 
-    v = map_settle_tol() if value is None else float(value)
+    v = STEADY_SETTLE_TOL if value is None else float(value)
     if not (math.isfinite(v) and 0.0 <= v <= 1e-6):
         raise InputError(f"--settle-tol {v:g}: expected 0 (off) or a tolerance up to 1e-6")
     return v

@@ -24,8 +24,8 @@ import numpy as np
 from ..config import load_param_set
 from ..errors import InputError
 from . import engine as E
-from .model import (BASE_PARAM_SETS, MODEL_PARAM_NAMES, CapsuleModel, Drive, EngineOptions, Friction,
-                    friction_preset, pack_params)
+from .model import (BASE_PARAM_SETS, MODEL_PARAM_NAMES, STEADY_SETTLE_TOL, CapsuleModel, Drive, EngineOptions,
+                    Friction, friction_preset, pack_params)
 from .run import check_status
 from .sweep import period_number
 
@@ -278,7 +278,8 @@ def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmo
     if n == 0:
         return pd.DataFrame(columns=["velocity_mm_s", "impacts_per_period", "period_number", "response_class",
                                      "window_sd_mm_s"])
-    opts = replace(options or EngineOptions(), energy=False).pack()
+    # steady state only: a settled transient ends early (STEADY_SETTLE_TOL unless the options say otherwise)
+    opts = replace(options or EngineOptions(settle_tol=STEADY_SETTLE_TOL), energy=False).pack()
     P = np.stack([system.params_row(d) for d in drives])
     ntr, nrec = int(protocol.transient_periods), int(protocol.recorded_periods)
     fr = system.friction()

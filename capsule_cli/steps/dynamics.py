@@ -13,7 +13,8 @@ import numpy as np
 
 from ..errors import InputError
 from ..tables import Column, TableSchema, provenance, write_json_atomic, write_table
-from ..dynamics.model import CapsuleModel, Drive, EngineOptions, Friction, friction_preset, load_model
+from ..dynamics.model import (STEADY_SETTLE_TOL, CapsuleModel, Drive, EngineOptions, Friction, friction_preset,
+                              load_model)
 from ..dynamics.run import simulate
 from ..dynamics.sweep import run_sweep
 
@@ -172,9 +173,9 @@ def sweep_to_dir(out: Path, model: CapsuleModel, drive: Drive, friction: Frictio
 
     state0 = [x_r, v_r, V_c] [m, m/s] is the initial state of every point (protocol rest) or of the
     first point (up/down); default rest. settle_tol: the settled-transient tolerance
-    (EngineOptions.settle_tol); None: the maps' (:func:`map_settle_tol`), so that a sweep point and a
+    (EngineOptions.settle_tol); None: STEADY_SETTLE_TOL, as the maps, so that a sweep point and a
     map point are the same computation."""
-    settle_tol = float(map_settle_tol() if settle_tol is None else settle_tol)
+    settle_tol = float(STEADY_SETTLE_TOL if settle_tol is None else settle_tol)
     res = run_sweep(model, drive, friction, param, values, protocol, transient_periods, periods, progress=progress,
                     state0=state0, options=EngineOptions(settle_tol=settle_tol))
     prov = _prov(model_name=model_name, model=model, drive=drive, friction=friction, parameter=param,
@@ -215,12 +216,6 @@ def map_rk_rtol() -> float:
     return float(load_fig19()["rk_rtol"])
 
 
-def map_settle_tol() -> float:
-    """The maps' settled-transient tolerance [-] (``settle_tol`` of configs/bench/fig19.yaml, where its
-    measured effect on A_f is stated; EngineOptions.settle_tol; 0 runs every transient period)."""
-    return float(load_fig19().get("settle_tol", 0.0))
-
-
 def load_fig19(path: Path | None = None) -> dict:
     """Return the seed 000 Fig 19 set (configs/bench/fig19.yaml): frictions, grid, periods, protocol."""
     from ..config import configs_dir, read_yaml
@@ -237,7 +232,7 @@ def magnify_arrays(model: CapsuleModel, Pd_values, f_values, friction: Friction,
     (increasing / decreasing) from rest at the first frequency, all P_d rows in parallel.
     ``rk_rtol``: relative tolerance of the adaptive segment (speed-law slip, eqs 22-23); None: the
     maps' tolerance (:func:`map_rk_rtol`). Exact (Coulomb, fixed-shell) modes ignore it. ``settle_tol``:
-    the settled-transient tolerance (EngineOptions.settle_tol); None: the maps' (:func:`map_settle_tol`).
+    the settled-transient tolerance (EngineOptions.settle_tol); None: STEADY_SETTLE_TOL (dynamics.model).
     Returns a dict of arrays Af, max_Fi_N, impacts_per_period, velocity_mm_s.
     """
     from ..dynamics import engine as E
@@ -268,7 +263,7 @@ def magnify_arrays(model: CapsuleModel, Pd_values, f_values, friction: Friction,
         for jj, j in enumerate(order):
             P[i, jj] = pack_params(model, Drive(float(a), float(f[j])), friction)
     opts = EngineOptions(energy=False, rk_rtol=float(map_rk_rtol() if rk_rtol is None else rk_rtol),
-                         settle_tol=float(map_settle_tol() if settle_tol is None else settle_tol)).pack()
+                         settle_tol=float(STEADY_SETTLE_TOL if settle_tol is None else settle_tol)).pack()
     if protocol == "rest":
         st, per, _ = run_points(P.reshape(-1, E.N_PARAMS), opts, np.zeros((P.shape[0] * P.shape[1], 4)),
                                 int(transient_periods), int(periods), progress=progress,

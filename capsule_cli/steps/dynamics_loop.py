@@ -52,7 +52,7 @@ from scipy import optimize
 from scipy.stats import qmc
 
 from ..dynamics import system as dsys
-from ..dynamics.model import EngineOptions
+from ..dynamics.model import STEADY_SETTLE_TOL, EngineOptions
 from ..effects.model import FreeParams, Model
 from ..effects.registry import Effect
 from ..errors import InputError
@@ -197,7 +197,7 @@ class DynBound(FreeParams):
     def __init__(self, model: Model, df: pd.DataFrame, where: str = "", modes: Mapping | None = None,
                  rk_rtol: float | None = None):
         self.model, self.df, self.where = model, df.reset_index(drop=True), where or "table"
-        self.options = None if rk_rtol is None else EngineOptions(rk_rtol=float(rk_rtol))
+        self.options = None if rk_rtol is None else EngineOptions(rk_rtol=float(rk_rtol), settle_tol=STEADY_SETTLE_TOL)
         self.n_sim = 0  # model evaluations (simulate calls) so far: the budget actually used
         self.last_batch_s = 0.0  # wall time of the last progression batch [s] (engine_threads)
         self.kind = model.kind
