@@ -77,3 +77,23 @@ def test_start_spread_finds_coexisting_attractors_the_window_sd_misses(case):
     # and the spread is about the SD of a new run's average: one start cannot be 10 spreads from the mean
     assert np.all(np.abs(plain["pred"][irregular] - starts["pred"][irregular])
                   <= 10 * starts["spread"][irregular] + 1e-9)
+
+
+def test_box_edges_count_a_zero_floor_within_rounding_as_zero(monkeypatch):
+    """A coefficient whose box starts at 0 and that the fit left within the at-bound tolerance of it (a
+    substrate damping of 1e-5 N s/m in [0, 10], found on data with a hidden compliance of 1 mm/N, which
+    otherwise ranked the right candidate last) is a zero term, not a box edge; the other edges still are."""
+    table = {
+        "substrate_damping_Ns_m": {"owner": "substrate_compliance", "at_bound": True, "bounds": [0.0, 10.0],
+                                   "value": 9.9e-6},
+        "compliance_mm_N": {"owner": "substrate_compliance", "at_bound": True, "bounds": [1e-3, 100.0],
+                            "value": 1e-3},
+        "drag_Ns_m": {"owner": "viscous_drag", "at_bound": True, "bounds": [0.0, 1.0], "value": 1.0},
+        "kappa": {"owner": "tilt_friction", "at_bound": False, "bounds": [-2.0, 2.0], "value": 0.1},
+    }
+    monkeypatch.setattr(DL, "param_table", lambda ev: table)
+    assert DL.box_edges(None, "substrate_compliance") == ["compliance_mm_N"]
+    table["compliance_mm_N"]["at_bound"] = False
+    assert DL.box_edges(None, "substrate_compliance") == []
+    assert DL.box_edges(None, "viscous_drag") == ["drag_Ns_m"]
+    assert DL.box_edges(None, "tilt_friction") == []

@@ -801,10 +801,13 @@ def box_edges(ev: DynEvaluation, owner: str) -> list[str]:
     """Return the parameters of ``owner`` that ended at an edge of their fit box, which the verdict ranks
     last (the model or the bounds may be wrong). A coefficient at a lower bound of exactly 0 is not one: a
     contact or drag damping, a speed-law rise, of zero is a physical value (the term vanishes), not a box
-    edge, and a secondary constraint whose contact is undamped is still a secondary constraint. The
-    parameter table still reports it as at its bound."""
+    edge, and a secondary constraint whose contact is undamped is still a secondary constraint. "At" is
+    the parameter table's at-bound test (within 1e-6 of the box's span), so a fit that stops a rounding
+    step above 0 (a substrate damping of 1e-5 N s/m in a box [0, 10]) counts as zero too. The parameter
+    table still reports it as at its bound."""
     return [k for k, p in param_table(ev).items()
-            if p["owner"] == owner and p.get("at_bound") and not (p["bounds"][0] == 0.0 and p["value"] <= 0.0)]
+            if p["owner"] == owner and p.get("at_bound")
+            and not (p["bounds"][0] == 0.0 and p["value"] <= 1e-6 * (p["bounds"][1] - p["bounds"][0]))]
 
 
 def param_table(ev: DynEvaluation) -> dict:
