@@ -1,8 +1,8 @@
 """Where a model fails and which physical effect is missing (``capsule-cli diagnose``).
 
 Steps: calibrate and cross-validate the model as is (grouped K-fold, :mod:`.crossval`);
-estimate the noise (:func:`.residual_tests.noise_estimate`: robust, outliers flagged by
-row and left out of the fits, serial correlation along time/position detected); refit
+estimate the noise (:func:`.residual_tests.noise_estimate` on the residuals of the model
+fitted to all rows: robust, outliers flagged by row and left out of the fits, serial correlation along time/position detected); refit
 model + each applicable effect from data-based guesses on the same folds; test the
 residuals for structure. The verdict is decided by the pure function
 :func:`capsule_cli.steps.verdict.decide_verdict` from those arrays (its rule,
@@ -25,7 +25,7 @@ from ..tables import (DYNAMICS_KINDS, is_synthetic, provenance, response_column,
 from ..units import split_unit, unit_label
 from ..validation import check_model_output
 from . import crossval
-from .compare import (CURVE_SCHEMA, Evaluation, data_hash, evaluate, fit_curves, fit_warnings, main_covariate,
+from .compare import (CURVE_SCHEMA, Evaluation, calibrate, data_hash, evaluate, fit_curves, fit_warnings, main_covariate,
                       param_table,
                       residual_frame, residual_schema)
 from .residual_tests import (correct_for_correlation, is_ordered, noise_estimate, numeric_covariates,
@@ -186,12 +186,15 @@ def diagnose_table(model: Model, df: pd.DataFrame, kind: str, where: str = "", k
     resp = response_column(kind)
     unit = unit_label(resp)
     df_all = df
-    noise = noise_estimate(df, resp)
+    bound = model.bind(df, where=str(where))
+    check_model_output(bound, None, "start values")  # validation layer: NaN names the effect (exit 2)
+    # the noise (and outliers) from the differences of the residuals of the model fitted to all rows
+    theta_all, _ = calibrate(bound, bound.observed(), seed=seed)
+    noise = noise_estimate(df, resp, fitted=bound.predict(theta_all))
     outliers = list(noise.get("outliers", []))
     if outliers:  # flagged rows are reported and left out of every fit
         df = df.drop(index=df.index[outliers]).reset_index(drop=True)
-    bound = model.bind(df, where=str(where))
-    check_model_output(bound, None, "start values")  # validation layer: NaN names the effect (exit 2)
+        bound = model.bind(df, where=str(where))
     groups, how = crossval.cv_groups(df, resp)
     folds = crossval.assign_folds(groups, k_folds, seed)
     base = evaluate(bound, folds, groups, seed=seed)
