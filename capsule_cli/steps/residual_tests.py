@@ -39,7 +39,7 @@ GROUP_LABELS = ("trial", "run")
 #: labels that annotate a row without changing what was measured
 NOTE_LABELS = ("source", "note", "id", "label")
 #: family false-alarm rate of the outlier flags over all rows of a table
-OUTLIER_ALPHA = 0.01
+OUTLIER_ALPHA = 0.05
 #: significance of serial correlation of the noise along time/position
 CORRELATION_ALPHA = 0.01
 
@@ -275,9 +275,20 @@ def gasser_sd(x: np.ndarray, y: np.ndarray) -> float:
     return float(np.sqrt(np.mean(e * e / c2)))
 
 
-def outlier_threshold(n: int, alpha: float = OUTLIER_ALPHA) -> float:
-    """Return the |z| above which a row is an outlier: Bonferroni over n rows at family ``alpha``, >= 3.5."""
-    return max(3.5, dist.norm_isf(alpha / (2 * max(n, 1))))
+#: variance of the mean square of equally spaced Gasser pseudo-residuals over that of independent ones,
+#: 1 + 2 (rho_1^2 + rho_2^2) with rho_1 = -2/3, rho_2 = 1/6: their effective degrees of freedom are m / 1.94
+PSEUDO_DOF_FACTOR = 1.0 + 2.0 * ((2.0 / 3.0) ** 2 + (1.0 / 6.0) ** 2)
+
+
+def outlier_threshold(n: int, alpha: float = OUTLIER_ALPHA, dof: float = math.inf) -> float:
+    """Return the |z| above which a row is an outlier: Bonferroni over n rows at family ``alpha``, >= 3.5.
+
+    With ``dof`` (degrees of freedom of the SD the deviation is divided by) the quantile is Student's t's,
+    as in Rosner's (1983) generalized ESD: a scale estimated from few points makes large ratios common.
+    """
+    q = alpha / (2 * max(n, 1))
+    z = dist.norm_isf(q) if not np.isfinite(dof) else (dist.t_ppf(1 - q, dof) if dof >= 1 else math.inf)
+    return max(3.5, z)
 
 
 def _robust_scale(z: np.ndarray) -> float:
@@ -291,10 +302,11 @@ def max_outliers(n: int) -> int:
     return int(max(1, min(20, n // 5)))
 
 
-def _esd_select(zs: list[float], thr: float) -> int:
-    """Return how many of the sequentially removed rows are outliers: the largest i with z_i > thr
-    (generalized ESD, Rosner 1983, Technometrics 25, 165: a later, larger deviation unmasks earlier ones)."""
-    hits = [i + 1 for i, z in enumerate(zs) if np.isfinite(z) and z > thr]
+def _esd_select(zs: list[tuple[float, float]], n: int) -> int:
+    """Return how many of the sequentially removed rows are outliers: the largest i whose (z_i, dof_i) has
+    z_i > :func:`outlier_threshold` (n, dof_i) (generalized ESD, Rosner 1983, Technometrics 25, 165: a later,
+    larger deviation unmasks earlier ones)."""
+    hits = [i + 1 for i, (z, dof) in enumerate(zs) if np.isfinite(z) and z > outlier_threshold(n, dof=dof)]
     return max(hits) if hits else 0
 
 
@@ -305,7 +317,7 @@ def _replicate_noise(y: np.ndarray, g: np.ndarray, resid: np.ndarray | None = No
     Generalized ESD (Rosner 1983) over the rows: the row with the largest leave-one-out deviation from the
     other rows of its group, d = (y - mean of the others) / sqrt(1 + 1/m), is removed, its z = |d| / (pooled
     SD of the rows left) recorded, up to :func:`max_outliers` times; the first i rows are outliers, i the last
-    step whose z exceeds :func:`outlier_threshold`. In a pair both rows deviate alike: the one farther from the
+    step whose z exceeds :func:`outlier_threshold` (Student's t with the pooled degrees of freedom left). In a pair both rows deviate alike: the one farther from the
     model fitted to all rows (``resid``, when given) is taken, else the later row.
     """
     n = y.size
@@ -334,11 +346,11 @@ def _replicate_noise(y: np.ndarray, g: np.ndarray, resid: np.ndarray | None = No
         near = np.flatnonzero(np.isfinite(a) & (a >= top * (1 - 1e-9)))
         i = int(near[np.argmax(tie[near])])
         keep[i] = False
-        sd = pooled(keep)[0]
-        zs.append(top / sd if sd > 0 else float("inf"))
+        sd, dof_left, _, _ = pooled(keep)
+        zs.append((top / sd if sd > 0 else float("inf"), float(dof_left)))
         order.append(i)
     out = np.zeros(n, bool)
-    out[order[:_esd_select(zs, outlier_threshold(n))]] = True
+    out[order[:_esd_select(zs, n)]] = True
     sd, dof, _, _ = pooled(~out)
     return sd, dof, out
 
@@ -392,7 +404,8 @@ def _difference_outliers(x: np.ndarray, y: np.ndarray, segs: list[np.ndarray], n
     Outliers by generalized ESD (Rosner 1983) on :func:`spike_statistic`: the point with the largest |z|
     (in units of the current estimate) is removed, its z against the SD of the points left recorded, up to
     :func:`max_outliers` times; the first i removed are outliers, i the last step above
-    :func:`outlier_threshold` (Bonferroni over the table's rows).
+    :func:`outlier_threshold` (Bonferroni over the table's rows; Student's t with the pseudo-residuals'
+    effective degrees of freedom, m / :data:`PSEUDO_DOF_FACTOR`).
     """
     segs = [np.asarray(s_, int) for s_ in segs if len(s_) >= 5]
     cache = [spike_statistic(x[s_], y[s_]) for s_ in segs]
@@ -418,9 +431,9 @@ def _difference_outliers(x: np.ndarray, y: np.ndarray, segs: list[np.ndarray], n
         removed.append(int(segs[k][j]))
         segs[k] = np.delete(segs[k], j)
         cache[k] = spike_statistic(x[segs[k]], y[segs[k]]) if segs[k].size >= 5 else (np.zeros(0), np.zeros(0))
-        sd, _ = scale()
-        zs.append(raw / sd if sd > 0 else float("inf"))
-    flagged = removed[:_esd_select(zs, outlier_threshold(n_rows))]
+        sd, cnt = scale()
+        zs.append((raw / sd if sd > 0 else float("inf"), cnt / PSEUDO_DOF_FACTOR))
+    flagged = removed[:_esd_select(zs, n_rows)]
     return flagged
 
 
