@@ -81,3 +81,37 @@ def test_outlier_flags_on_clean_tables_stay_rare():
             flagged += bool(noise_estimate(pd.DataFrame({"speed_mm_s": x, "friction_mN": rng.standard_normal(n)}),
                                            "friction_mN")["outliers"])
     assert flagged <= 9  # 300 tables, family alpha 0.02 per table (measured 0-1 %)
+
+
+def test_a_value_decades_above_a_tiny_lower_bound_is_not_at_the_bound():
+    from capsule_cli.fitting import _near_bound
+
+    assert not _near_bound(0.0405, 1e-6, 1e5)  # arm_eta_2_MPa_s of a 0.5-s arm: was reported "at its bound"
+    assert _near_bound(1.0000001e-6, 1e-6, 1e5) and _near_bound(1e5 * (1 - 1e-9), 1e-6, 1e5)
+    assert _near_bound(1e-16, 0.0, 1.0) and not _near_bound(0.3, 0.0, 1.0)  # bounds at 0: linear, as before
+
+
+def test_a_grid_without_replicates_gets_a_noise_estimate_and_nothing_missing():
+    design = pd.DataFrame([(v, T) for v in (1, 4, 8, 12) for T in (33, 36, 39, 41)],
+                          columns=["speed_mm_s", "temperature_C"])  # 4 x 4, 4 rows per segment
+    df = synthesize(mk(fr([])), design, 1.0, 0.0, 1, 18)
+    r = diagnose_table(mk(COULOMB_FREE), df, "friction").result
+    assert r["noise"]["reliable"] and 0.6 < r["noise"]["sd"] < 1.4  # before: "cannot be estimated"
+    assert r["verdict"]["outcome"] == "nothing_missing", r["verdict"]["message"]
+
+
+def test_a_named_effect_that_leaves_error_says_so():
+    from capsule_cli.steps.verdict import FitSummary, Noise, decide_verdict
+
+    n = 20
+    x = np.linspace(0.2, 12, n)
+    y = np.zeros(n)
+    rng = np.random.default_rng(0)
+    base = FitSummary("", 1, 180.0, y + 3.0 * rng.choice([-1, 1], n), np.full(n, 9.0))
+    win = FitSummary("viscous", 2, 15.0, y + 0.87 * rng.choice([-1, 1], n), np.full(n, 1.0), ("speed_mm_s",))
+    v = decide_verdict(y, base, [win], Noise(0.5, 0.05), {"speed_mm_s": x}, [], np.arange(n), 5, unit="mN")
+    assert v.outcome == "missing_effect" and v.missing_effect == "viscous"
+    assert "still exceeds the 0.53 mN expected from the noise" in v.message, v.message  # 0.5 x sqrt(1 + 2/16)
+    ok = FitSummary("viscous", 2, 5.0, y, np.full(n, 0.27), ("speed_mm_s",))
+    assert "still exceeds" not in decide_verdict(y, base, [ok], Noise(0.5, 0.05), {"speed_mm_s": x}, [],
+                                                 np.arange(n), 5, unit="mN").message

@@ -265,7 +265,7 @@ def gasser_sd(x: np.ndarray, y: np.ndarray) -> float:
     """Return the Gasser-Sroka-Jennen-Steinmetz noise SD of ``y`` along the ordered ``x``."""
     x = np.asarray(x, float)
     y = np.asarray(y, float)
-    if y.size < 5:
+    if y.size < 3:
         return float("nan")
     x0, x1, x2 = x[:-2], x[1:-1], x[2:]
     span = x2 - x0
@@ -562,34 +562,40 @@ def noise_estimate(df: pd.DataFrame, response: str, fitted: np.ndarray | None = 
     covs = numeric_covariates(df, response)
     labels = [c for c in GROUP_LABELS if c in df.columns]
     found = []
-    for c in covs:
-        if df[c].nunique() < 3:
-            continue
-        others = [o for o in covs if o != c and df[o].nunique() <= max(10, len(df) // 10)]
-        d = df.reset_index(drop=True)
-        order = d.sort_values(labels + others + [c], kind="stable").index.to_numpy()
-        x = d[c].to_numpy(dtype=float)[order]
-        yy = (y if res is None else res)[order]
-        if labels + others:  # rows sorted by the labels first: each segment is one contiguous run (O(rows))
-            key = d.loc[order, labels + others].groupby(labels + others, sort=False, dropna=False).ngroup().to_numpy()
-            segs = np.split(np.arange(y.size), np.flatnonzero(key[1:] != key[:-1]) + 1)
-        else:
-            segs = [np.arange(y.size)]
-        segs = [s for s in segs if s.size >= 5]
-        if not segs:
-            continue
-        flagged = [int(order[i]) for i in _difference_outliers(x, yy, segs, y.size)]
-        fl = set(flagged)
-        gone = np.array(sorted(fl), int)
-        clean = [s[~np.isin(order[s], gone)] for s in segs]
-        clean = [s for s in clean if s.size >= 5]
-        if not clean:
-            continue
-        pe = [_pseudo(x[s], yy[s]) for s in clean]
-        allp = np.concatenate(pe)
-        sd = float(np.sqrt(np.mean(allp ** 2)))
-        corr = None
-        found.append((sd, c, sorted(fl), corr, int(allp.size)))
+    # segments of 5+ points first; a grid with fewer levels per covariate (4 speeds x 4 temperatures, no
+    # replicates) still has 3-4 points per segment: Gasser's pseudo-residuals need 3 (outliers are only
+    # searched in segments of 5+)
+    for min_pts in (5, 3):
+        for c in covs:
+            if df[c].nunique() < 3:
+                continue
+            others = [o for o in covs if o != c and df[o].nunique() <= max(10, len(df) // 10)]
+            d = df.reset_index(drop=True)
+            order = d.sort_values(labels + others + [c], kind="stable").index.to_numpy()
+            x = d[c].to_numpy(dtype=float)[order]
+            yy = (y if res is None else res)[order]
+            if labels + others:  # rows sorted by the labels first: each segment is one contiguous run (O(rows))
+                key = d.loc[order, labels + others].groupby(labels + others, sort=False, dropna=False).ngroup().to_numpy()
+                segs = np.split(np.arange(y.size), np.flatnonzero(key[1:] != key[:-1]) + 1)
+            else:
+                segs = [np.arange(y.size)]
+            segs = [s for s in segs if s.size >= min_pts]
+            if not segs:
+                continue
+            flagged = [int(order[i]) for i in _difference_outliers(x, yy, segs, y.size)]
+            fl = set(flagged)
+            gone = np.array(sorted(fl), int)
+            clean = [s[~np.isin(order[s], gone)] for s in segs]
+            clean = [s for s in clean if s.size >= min_pts]
+            if not clean:
+                continue
+            pe = [_pseudo(x[s], yy[s]) for s in clean]
+            allp = np.concatenate(pe)
+            sd = float(np.sqrt(np.mean(allp ** 2)))
+            corr = None
+            found.append((sd, c, sorted(fl), corr, int(allp.size)))
+        if found:
+            break
     # correlated noise is a property of the noise: when an ordering shows it, its corrected estimate is used
     pool = [f for f in found if f[3]] or found
     best = min(pool, key=lambda f: f[0]) if pool else None

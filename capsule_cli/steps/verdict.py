@@ -91,7 +91,8 @@ RULE_TEXT = (
     "F test (Bonferroni over candidates and pairs) and lower the held-out error: then the one with the better own "
     "fit is named as a partial step. Covariates collinear in the data (|r| >= "
     f"{COLLINEAR_R:g}) are named together, never one of them alone. \"Nothing is missing\" only when the "
-    f"held-out error is within {EXCESS_Z:g} standard errors of the noise level; otherwise \"the data cannot tell\". "
+    f"held-out error is within {EXCESS_Z:g} standard errors of the noise level; otherwise \"the data cannot tell\" "
+    "(and a named effect whose held-out error stays above that is said to leave error unexplained). "
     f"At most {100 * (ALPHA_EFFECT + ALPHA_STRUCTURE):g} % of data sets with nothing missing get a finding "
     "(benchmarks/verdict_calibration.py).")
 
@@ -571,6 +572,16 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
         if left:
             msg += (f". Structure remains against {left[0]['covariate']} ({left[0]['test']}, "
                     f"p = {_g(left[0]['p_value'])}): after adding it, run diagnose again")
+        elif noise.reliable and np.isfinite(noise.sd):
+            # the tool's own numbers: does the winner bring the held-out error down to the noise level?
+            exp_w = noise.sd * math.sqrt(expected_cv_inflation(n, win.n_free, n_folds))
+            se_w = crossval.cv_rmse(win.sq_err, groups)[1]
+            se_w = math.hypot(se_w if np.isfinite(se_w) else 0.0,
+                              (noise.se or 0.0) * math.sqrt(expected_cv_inflation(n, win.n_free, n_folds)))
+            if win.cv_rmse > exp_w + EXCESS_Z * se_w:
+                msg += (f". With it the held-out RMSE ({_g(win.cv_rmse)} {unit}) still exceeds the {_g(exp_w)} {unit} "
+                        f"expected from the noise by more than {EXCESS_Z:g} standard errors ({_g(se_w)}): its form "
+                        "may not match the data, or a second effect is missing; after adding it, run diagnose again")
         return Verdict("missing_effect", win.name, cov, None, msg, tests=tests, structure_used=left,
                        alternatives=close)
 
