@@ -46,6 +46,10 @@ OUTLIER_ALPHA = 0.02
 CORRELATION_ALPHA = 0.01
 
 
+#: segments of 3-4 points (a grid without replicates) give a noise estimate only from this many pseudo-residuals
+MIN_PSEUDO_SHORT = 6
+
+
 def _base(col: str) -> str:
     b, s = split_unit(col)
     return b if s else col
@@ -561,10 +565,13 @@ def noise_estimate(df: pd.DataFrame, response: str, fitted: np.ndarray | None = 
                           + (f"; {len(rows)} outlier rows left out" if rows else "") + ")"}
     covs = numeric_covariates(df, response)
     labels = [c for c in GROUP_LABELS if c in df.columns]
+    # other labels that change what was measured (statistic avg/max, case ...) split the records too
+    labels += [c for c in df.columns if c not in labels and c not in covs and c != response
+               and c not in NOTE_LABELS and df[c].nunique(dropna=False) > 1]
     found = []
     # segments of 5+ points first; a grid with fewer levels per covariate (4 speeds x 4 temperatures, no
     # replicates) still has 3-4 points per segment: Gasser's pseudo-residuals need 3 (outliers are only
-    # searched in segments of 5+)
+    # searched in segments of 5+), and at least MIN_PSEUDO_SHORT of them are asked for
     for min_pts in (5, 3):
         for c in covs:
             if df[c].nunique() < 3:
@@ -591,6 +598,8 @@ def noise_estimate(df: pd.DataFrame, response: str, fitted: np.ndarray | None = 
                 continue
             pe = [_pseudo(x[s], yy[s]) for s in clean]
             allp = np.concatenate(pe)
+            if min_pts < 5 and allp.size < MIN_PSEUDO_SHORT:
+                continue  # a handful of 3-point curvatures measures the curve, not the noise
             sd = float(np.sqrt(np.mean(allp ** 2)))
             corr = None
             found.append((sd, c, sorted(fl), corr, int(allp.size)))
