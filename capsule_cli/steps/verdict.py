@@ -88,8 +88,8 @@ RULE_TEXT = (
     "structure (trend, lack of fit, runs, periodogram; serial correlation of the noise along time/position "
     f"allowed for; Bonferroni over all tests, family alpha = {ALPHA_STRUCTURE:g}) names the covariate an effect "
     "that is not built in depends on, unless two built-in effects on that covariate fitted together pass the same "
-    "F test (Bonferroni over candidates and pairs) and lower the held-out error: then the one with the better own "
-    "fit is named as a partial step. Covariates collinear in the data (|r| >= "
+    "F test (Bonferroni over candidates and pairs), lower the held-out error and remove at least "
+    f"{100 * PARTIAL_SHARE:g} % of it above the noise: then the one with the better own fit is named as a partial step. Covariates collinear in the data (|r| >= "
     f"{COLLINEAR_R:g}) are named together, never one of them alone. \"Nothing is missing\" only when the "
     f"held-out error is within {EXCESS_Z:g} standard errors of the noise level; otherwise \"the data cannot tell\" "
     "(and a named effect whose held-out error stays above that is said to leave error unexplained). "
@@ -406,10 +406,11 @@ def _g(v: float) -> str:
 
 
 def _pair_verdict(y, base: FitSummary, candidates: Sequence[FitSummary], pairs: Sequence[FitSummary], noise: Noise,
-                  cov: str, groups, m: int, alpha: float, unit: str, noise_txt: str, corr_txt: str, sig, tests
-                  ) -> Verdict | None:
+                  cov: str, groups, m: int, alpha: float, unit: str, noise_txt: str, corr_txt: str, sig, tests,
+                  expect: float = float("nan")) -> Verdict | None:
     """Return a partial-step verdict when two built-in effects on ``cov`` together pass the rule (their
-    nested F test against the model as is at p < alpha / (m + pairs tried), lower held-out error), else None.
+    nested F test against the model as is at p < alpha / (m + pairs tried), lower held-out error, and at least
+    PARTIAL_SHARE of the held-out error above the noise level ``expect`` removed, as for a partial step), else None.
     The member named first is the one whose own fit has the lower AICc (one with a parameter at a bound last);
     the next diagnose finds the other."""
     on = [p for p in pairs if cov in p.covariates]
@@ -423,11 +424,15 @@ def _pair_verdict(y, base: FitSummary, candidates: Sequence[FitSummary], pairs: 
         F, pv = nested_f_test(r0, base.n_free, r1, p.n_free, n)
         d, se = crossval.paired_difference(base.sq_err, p.sq_err, groups)
         pa = min(1.0, pv * mm) if np.isfinite(pv) else float("nan")
-        good = bool(np.isfinite(pa) and pa < alpha and d > 0)
+        floor = expect ** 2 if noise.reliable and np.isfinite(expect) else 0.0
+        ex2 = base.cv_rmse ** 2 - floor
+        share = (base.cv_rmse ** 2 - p.cv_rmse ** 2) / ex2 if ex2 > 0 else 0.0
+        good = bool(np.isfinite(pa) and pa < alpha and d > 0 and share >= PARTIAL_SHARE)
         tests.append(CandidateTest(p.name, F, pv, pa, d, se, good,
                                    "passes (two effects at once)" if good else
                                    f"two effects at once: F test p = {_g(pv)} (x {mm} = {_g(pa)}); "
-                                   + ("lower held-out error" if d > 0 else "no lower held-out error")))
+                                   + (f"removes {100 * share:.0f} % of the held-out error above the noise"
+                                      if d > 0 else "no lower held-out error")))
         if good:
             ok.append((aicc(p.rss, n, p.n_free), p, pv))
     if not ok:
@@ -556,7 +561,7 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
                                structure_used=left, alternatives=close)
             if not periodic:
                 pv = _pair_verdict(y, base, candidates, pairs, noise, s["covariate"], groups, m, alpha_effect, unit,
-                                   noise_txt, corr_txt, own_left, tests)
+                                   noise_txt, corr_txt, own_left, tests, expect)
                 if pv is not None:
                     return pv
             per = _period(structure, s["covariate"], alpha_structure) if s["covariate"] in ordered else per
@@ -596,7 +601,7 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
                    f"{corr_txt}")
             return Verdict("cannot_tell", None, None, None, msg, confounded=group, tests=tests, structure_used=sig)
         pv = _pair_verdict(y, base, candidates, pairs, noise, cov, groups, m, alpha_effect, unit, noise_txt,
-                           corr_txt, sig, tests)
+                           corr_txt, sig, tests, expect)
         if pv is not None:
             return pv
         per = _period(structure, cov, alpha_structure) if cov in ordered else None
