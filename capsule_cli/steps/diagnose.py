@@ -430,6 +430,12 @@ def diagnosis_markdown(r: dict, cands: list[Candidate], base: Evaluation, winner
                      f"{c.reason} |")
     if not cands:
         lines.append("| (no applicable candidate: the table lacks the covariates they need) | | | | | | |")
+    if r.get("pairs_tried"):
+        lines += ["", "Pairs of effects fitted together (no single effect explained the dependence on "
+                  f"{r['verdict'].get('covariate') or 'a covariate'}):", "",
+                  f"| effects | held-out RMSE [{u}] | F test p | verdict rule |", "| --- | --- | --- | --- |"]
+        lines += [f"| {' + '.join(p['effects'])} | {_fmt(p['cv_rmse'])} | {_fmt(p.get('f_test_p', float('nan')))} | "
+                  f"{p.get('reason', '')} |" for p in r["pairs_tried"]]
     if r.get("skipped_candidates"):
         lines += ["", "Not tried (or constant here):", ""]
         lines += [f"- {k['effect']}: {k['reason']}" for k in r["skipped_candidates"]]
