@@ -14,6 +14,7 @@ method). Information criteria use the Gaussian log-likelihood.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
@@ -107,6 +108,18 @@ def _best_of(resid, starts, lower, upper, x_scale, tol, max_nfev):
     return best, converged
 
 
+def _near_bound(v: float, lo: float, hi: float, rel: float = 1e-6) -> bool:
+    """Return True when ``v`` ended at a bound: within ``rel`` of the span, measured on a log scale for positive
+    bounds spanning more than three decades (bounds [1e-6, 1e5] MPa s: a value 0.04 is not at 1e-6, though
+    within 1e-6 of the linear span)."""
+    if np.isfinite(lo) and np.isfinite(hi) and lo > 0 and hi / lo > 1e3 and v > 0:
+        span = math.log(hi / lo)
+        return math.log(v / lo) <= rel * span or math.log(hi / v) <= rel * span
+    sp = hi - lo if np.isfinite(hi - lo) else math.inf
+    return bool((np.isfinite(lo) and v - lo <= rel * max(sp, abs(v), 1e-12))
+                or (np.isfinite(hi) and hi - v <= rel * max(sp, abs(v), 1e-12)))
+
+
 def fit_least_squares(model: Callable[[np.ndarray], np.ndarray], y: np.ndarray, x0: Sequence[float],
                       names: Sequence[str], bounds: tuple[Sequence[float], Sequence[float]] | None = None,
                       sigma: np.ndarray | None = None, n_starts: int = 6, seed: int = 0,
@@ -183,10 +196,7 @@ def fit_least_squares(model: Callable[[np.ndarray], np.ndarray], y: np.ndarray, 
     ss_tot = float(((y - y.mean()) ** 2).sum())
     r2 = 1.0 - rss / ss_tot if ss_tot > 0 else float("nan")
     aic, bic = information_criteria(rss, n, k)
-    span = np.where(np.isfinite(upper - lower), upper - lower, np.inf)
-    at_bound = [nm for nm, v, lo, hi, sp in zip(names, p, lower, upper, span)
-                if (np.isfinite(lo) and v - lo <= 1e-6 * max(sp, abs(v), 1e-12))
-                or (np.isfinite(hi) and hi - v <= 1e-6 * max(sp, abs(v), 1e-12))]
+    at_bound = [nm for nm, v, lo, hi in zip(names, p, lower, upper) if _near_bound(v, lo, hi)]
     lo_ci = np.maximum(p - tq * se, lower)
     hi_ci = np.minimum(p + tq * se, upper)
     degenerate = degenerate_parameters(names, p, se, p - tq * se, p + tq * se)

@@ -282,7 +282,7 @@ def run_compare(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_d
     folds = crossval.assign_folds(groups, k_folds, seed)
     ev = evaluate(bound, folds, groups, seed=seed)
     check_model_output(bound, ev.theta, "solution")
-    noise = noise_estimate(df, resp)
+    noise = noise_estimate(df, resp, fitted=ev.pred)  # differences of the residuals (curvature removed)
     dh = data_hash(data_path)
     met = metrics(ev, noise, data_path, dh, k_folds, how)
     # derived tables are not synthetic data themselves: they record that their input was

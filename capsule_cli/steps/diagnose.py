@@ -1,8 +1,8 @@
 """Where a model fails and which physical effect is missing (``capsule-cli diagnose``).
 
 Steps: calibrate and cross-validate the model as is (grouped K-fold, :mod:`.crossval`);
-estimate the noise (:func:`.residual_tests.noise_estimate`: robust, outliers flagged by
-row and left out of the fits, serial correlation along time/position detected); refit
+estimate the noise (:func:`.residual_tests.noise_estimate` on the residuals of the model
+fitted to all rows: robust, outliers flagged by row and left out of the fits, serial correlation along time/position detected); refit
 model + each applicable effect from data-based guesses on the same folds; test the
 residuals for structure. The verdict is decided by the pure function
 :func:`capsule_cli.steps.verdict.decide_verdict` from those arrays (its rule,
@@ -25,7 +25,7 @@ from ..tables import (DYNAMICS_KINDS, is_synthetic, provenance, response_column,
 from ..units import split_unit, unit_label
 from ..validation import check_model_output
 from . import crossval
-from .compare import (CURVE_SCHEMA, Evaluation, data_hash, evaluate, fit_curves, fit_warnings, main_covariate,
+from .compare import (CURVE_SCHEMA, Evaluation, calibrate, data_hash, evaluate, fit_curves, fit_warnings, main_covariate,
                       param_table,
                       residual_frame, residual_schema)
 from .residual_tests import (correct_for_correlation, is_ordered, noise_estimate, numeric_covariates,
@@ -139,8 +139,36 @@ def summary(ev: Evaluation, name: str = "", covariates=(), structure=None) -> Fi
     return FitSummary(name, len(ev.bound.free), ev.rss, ev.pred, ev.sq_err, tuple(covariates), structure or [])
 
 
+def fit_pair(model: Model, a: Candidate, b: Candidate, df: pd.DataFrame, base: Evaluation, seed: int
+             ) -> Evaluation | None:
+    """Return the calibrated and cross-validated model + both candidates' effects, started from each one's own
+    fit (None when too few data)."""
+    m2 = a.model.with_values(a.ev.bound.values(a.ev.theta))
+    vb = b.ev.bound.values(b.ev.theta)
+    m2 = m2.with_effect(b.effect, {s.param.name: vb[s.key] for s in b.model.specs if s.owner == b.effect.name})
+    b2 = m2.bind(df)
+    if len(b2.free) > b2.n - 2:
+        return None
+    return evaluate(b2, base.folds, base.groups, x0=b2.x0, n_starts=CANDIDATE_STARTS, seed=seed)
+
+
+def pair_summaries(model: Model, cands: list[Candidate], cov: str, df: pd.DataFrame, base: Evaluation,
+                   seed: int) -> list[FitSummary]:
+    """Return the fits of every pair of candidates that both depend on ``cov`` (two effects at once)."""
+    on = [c for c in cands if base_name(cov) in {base_name(e) for e in c.effect.covariates}]
+    out = []
+    for i, a in enumerate(on):
+        for b in on[i + 1:]:
+            ev = fit_pair(model, a, b, df, base, seed)
+            if ev is not None:
+                out.append(FitSummary(f"{a.effect.name}+{b.effect.name}", len(ev.bound.free), ev.rss, ev.pred,
+                                      ev.sq_err, (cov,), members=(a.effect.name, b.effect.name)))
+    return out
+
+
 def compute_verdict(df: pd.DataFrame, resp: str, base: Evaluation, cands: list[Candidate], noise: dict,
-                    covs: list[str], struct: list[dict], groups: np.ndarray, folds: np.ndarray) -> Verdict:
+                    covs: list[str], struct: list[dict], groups: np.ndarray, folds: np.ndarray,
+                    pairs: list[FitSummary] = ()) -> Verdict:
     """Return the verdict from the evaluations (no files): structure of each candidate's residuals, then
     :func:`decide_verdict`."""
     sums = []
@@ -155,7 +183,7 @@ def compute_verdict(df: pd.DataFrame, resp: str, base: Evaluation, cands: list[C
     nz = Noise(noise["sd"], noise["se"], noise.get("reliable", True), noise["method"], noise.get("correlated"))
     return decide_verdict(base.y, summary(base), sums, nz, {c: df[c].to_numpy(float) for c in covs}, struct,
                           groups, int(np.unique(folds).size), ordered=[c for c in covs if is_ordered(c)],
-                          unit=unit_label(resp), response=split_unit(resp)[0])
+                          unit=unit_label(resp), response=split_unit(resp)[0], pairs=pairs)
 
 
 def _fmt(v: float, unit: str = "") -> str:
@@ -186,12 +214,15 @@ def diagnose_table(model: Model, df: pd.DataFrame, kind: str, where: str = "", k
     resp = response_column(kind)
     unit = unit_label(resp)
     df_all = df
-    noise = noise_estimate(df, resp)
+    bound = model.bind(df, where=str(where))
+    check_model_output(bound, None, "start values")  # validation layer: NaN names the effect (exit 2)
+    # the noise (and outliers) from the differences of the residuals of the model fitted to all rows
+    theta_all, _ = calibrate(bound, bound.observed(), seed=seed)
+    noise = noise_estimate(df, resp, fitted=bound.predict(theta_all))
     outliers = list(noise.get("outliers", []))
     if outliers:  # flagged rows are reported and left out of every fit
         df = df.drop(index=df.index[outliers]).reset_index(drop=True)
-    bound = model.bind(df, where=str(where))
-    check_model_output(bound, None, "start values")  # validation layer: NaN names the effect (exit 2)
+        bound = model.bind(df, where=str(where))
     groups, how = crossval.cv_groups(df, resp)
     folds = crossval.assign_folds(groups, k_folds, seed)
     base = evaluate(bound, folds, groups, seed=seed)
@@ -214,6 +245,12 @@ def diagnose_table(model: Model, df: pd.DataFrame, kind: str, where: str = "", k
     struct = structure_tests(df, base.resid, covs, correlation=noise.get("correlated"))
     cands.sort(key=lambda c: c.ev.cv_rmse)
     vres = compute_verdict(df, resp, base, cands, noise, covs, struct, groups, folds)
+    pairs: list[FitSummary] = []
+    if vres.outcome == "not_built_in" and vres.covariate and len(cands) >= 2:
+        # no single effect explains the dependence on a covariate: two built-in effects at once?
+        pairs = pair_summaries(model, cands, vres.covariate, df, base, seed)
+        if pairs:
+            vres = compute_verdict(df, resp, base, cands, noise, covs, struct, groups, folds, pairs)
     verdict = vres.as_dict()
     verdict["period_unit"] = unit_label(vres.covariate) if vres.period else None
     tests = {t.name: t for t in vres.tests}
@@ -256,6 +293,9 @@ def diagnose_table(model: Model, df: pd.DataFrame, kind: str, where: str = "", k
         "skipped_candidates": skipped,
         "residual_structure": struct,
         "residual_structure_after_winner": left if winner is not None else [],
+        "pairs_tried": [{"effects": list(p.members), "cv_rmse": p.cv_rmse, "n_free": p.n_free,
+                         **({"f_test_p": t.p_value, "f_test_p_adjusted": t.p_adjusted, "passes": t.supported,
+                             "reason": t.reason} if (t := tests.get(p.name)) else {})} for p in pairs],
         "verdict": verdict,
         "rule": RULE_TEXT, "alpha_effect": ALPHA_EFFECT, "alpha_structure": ALPHA_STRUCTURE,
     }
@@ -390,6 +430,12 @@ def diagnosis_markdown(r: dict, cands: list[Candidate], base: Evaluation, winner
                      f"{c.reason} |")
     if not cands:
         lines.append("| (no applicable candidate: the table lacks the covariates they need) | | | | | | |")
+    if r.get("pairs_tried"):
+        lines += ["", "Pairs of effects fitted together (no single effect explained the dependence on "
+                  f"{r['verdict'].get('covariate') or 'a covariate'}):", "",
+                  f"| effects | held-out RMSE [{u}] | F test p | verdict rule |", "| --- | --- | --- | --- |"]
+        lines += [f"| {' + '.join(p['effects'])} | {_fmt(p['cv_rmse'])} | {_fmt(p.get('f_test_p', float('nan')))} | "
+                  f"{p.get('reason', '')} |" for p in r["pairs_tried"]]
     if r.get("skipped_candidates"):
         lines += ["", "Not tried (or constant here):", ""]
         lines += [f"- {k['effect']}: {k['reason']}" for k in r["skipped_candidates"]]

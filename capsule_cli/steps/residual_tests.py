@@ -38,10 +38,16 @@ ORDERED = ("time", "position")
 GROUP_LABELS = ("trial", "run")
 #: labels that annotate a row without changing what was measured
 NOTE_LABELS = ("source", "note", "id", "label")
-#: family false-alarm rate of the outlier flags over all rows of a table
-OUTLIER_ALPHA = 0.01
+#: family false-alarm rate of the outlier flags over all rows of a table (Bonferroni, Student's t with the
+#: scale's degrees of freedom; measured: 0-2.5 % of tables with nothing wrong get a flag, 6-200 rows, pairs and
+#: groups of four replicates)
+OUTLIER_ALPHA = 0.02
 #: significance of serial correlation of the noise along time/position
 CORRELATION_ALPHA = 0.01
+
+
+#: segments of 3-4 points (a grid without replicates) give a noise estimate only from this many pseudo-residuals
+MIN_PSEUDO_SHORT = 6
 
 
 def _base(col: str) -> str:
@@ -263,7 +269,7 @@ def gasser_sd(x: np.ndarray, y: np.ndarray) -> float:
     """Return the Gasser-Sroka-Jennen-Steinmetz noise SD of ``y`` along the ordered ``x``."""
     x = np.asarray(x, float)
     y = np.asarray(y, float)
-    if y.size < 5:
+    if y.size < 3:
         return float("nan")
     x0, x1, x2 = x[:-2], x[1:-1], x[2:]
     span = x2 - x0
@@ -275,9 +281,20 @@ def gasser_sd(x: np.ndarray, y: np.ndarray) -> float:
     return float(np.sqrt(np.mean(e * e / c2)))
 
 
-def outlier_threshold(n: int, alpha: float = OUTLIER_ALPHA) -> float:
-    """Return the |z| above which a row is an outlier: Bonferroni over n rows at family ``alpha``, >= 3.5."""
-    return max(3.5, dist.norm_isf(alpha / (2 * max(n, 1))))
+#: variance of the mean square of equally spaced Gasser pseudo-residuals over that of independent ones,
+#: 1 + 2 (rho_1^2 + rho_2^2) with rho_1 = -2/3, rho_2 = 1/6: their effective degrees of freedom are m / 1.94
+PSEUDO_DOF_FACTOR = 1.0 + 2.0 * ((2.0 / 3.0) ** 2 + (1.0 / 6.0) ** 2)
+
+
+def outlier_threshold(n: int, alpha: float = OUTLIER_ALPHA, dof: float = math.inf) -> float:
+    """Return the |z| above which a row is an outlier: Bonferroni over n rows at family ``alpha``, >= 3.5.
+
+    With ``dof`` (degrees of freedom of the SD the deviation is divided by) the quantile is Student's t's,
+    as in Rosner's (1983) generalized ESD: a scale estimated from few points makes large ratios common.
+    """
+    q = alpha / (2 * max(n, 1))
+    z = dist.norm_isf(q) if not np.isfinite(dof) else (dist.t_ppf(1 - q, dof) if dof >= 1 else math.inf)
+    return max(3.5, z)
 
 
 def _robust_scale(z: np.ndarray) -> float:
@@ -286,40 +303,144 @@ def _robust_scale(z: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(z))) if z.size else float("nan")
 
 
-def _replicate_noise(y: np.ndarray, g: np.ndarray) -> tuple[float, int, np.ndarray]:
-    """Return (pooled SD, dof, outlier mask) at replicate groups, outliers flagged by leave-one-out z.
+def max_outliers(n: int) -> int:
+    """Return the most rows the outlier search may flag in a table of n rows (one in five, 1-20)."""
+    return int(max(1, min(20, n // 5)))
 
-    The first scale is the MAD of the leave-one-out deviations (robust to a few outliers); then the pooled
-    SD of the rows kept, iterated until the flags settle.
+
+def _esd_select(zs: list[tuple[float, float]], n: int) -> int:
+    """Return how many of the sequentially removed rows are outliers: the largest i whose (z_i, dof_i) has
+    z_i > :func:`outlier_threshold` (n, dof_i) (generalized ESD, Rosner 1983, Technometrics 25, 165: a later,
+    larger deviation unmasks earlier ones)."""
+    hits = [i + 1 for i, (z, dof) in enumerate(zs) if np.isfinite(z) and z > outlier_threshold(n, dof=dof)]
+    return max(hits) if hits else 0
+
+
+def _replicate_noise(y: np.ndarray, g: np.ndarray, resid: np.ndarray | None = None
+                     ) -> tuple[float, int, np.ndarray]:
+    """Return (pooled SD, dof, outlier mask) at replicate groups.
+
+    Generalized ESD (Rosner 1983) over the rows: the row with the largest leave-one-out deviation from the
+    other rows of its group, d = (y - mean of the others) / sqrt(1 + 1/m), is removed, its z = |d| / (pooled
+    SD of the rows left) recorded, up to :func:`max_outliers` times; the first i rows are outliers, i the last
+    step whose z exceeds :func:`outlier_threshold` (Student's t with the pooled degrees of freedom left). In a pair both rows deviate alike: the one farther from the
+    model fitted to all rows (``resid``, when given) is taken, else the later row.
     """
-    out = np.zeros(y.size, bool)
-    sd = float("nan")
+    n = y.size
+    keep = np.ones(n, bool)
 
-    def pooled(keep):
-        cnt = np.bincount(g[keep], minlength=g.max() + 1).astype(float)
-        tot = np.bincount(g[keep], weights=y[keep], minlength=g.max() + 1)
+    def pooled(kp):
+        cnt = np.bincount(g[kp], minlength=g.max() + 1).astype(float)
+        tot = np.bincount(g[kp], weights=y[kp], minlength=g.max() + 1)
         mean = np.where(cnt > 0, tot / np.maximum(cnt, 1), 0.0)
         dof = int(np.sum(np.maximum(cnt - 1, 0)))
-        ss = float(np.sum(((y - mean[g]) ** 2)[keep & (cnt[g] >= 2)]))
+        ss = float(np.sum(((y - mean[g]) ** 2)[kp & (cnt[g] >= 2)]))
         return (math.sqrt(ss / dof) if dof > 0 else float("nan")), dof, cnt, tot
 
-    for it in range(6):
-        keep = ~out
-        _, dof, cnt, tot = pooled(keep)
-        c = cnt[g]
+    order, zs = [], []
+    tie = np.abs(resid) if resid is not None else np.arange(n, dtype=float)
+    for _ in range(max_outliers(n)):
+        _, _, cnt, tot = pooled(keep)
+        m = cnt[g] - 1.0
         with np.errstate(invalid="ignore", divide="ignore"):
-            m = c - keep  # kept rows of the group other than this one
-            loo = np.where(m > 0, (tot[g] - np.where(keep, y, 0.0)) / m, np.nan)
-            d = (y - loo) / np.sqrt(1.0 + 1.0 / m)
-        if it == 0:
-            sd = _robust_scale(d[np.isfinite(d)])
-        new = np.isfinite(d) & (np.abs(d) > outlier_threshold(y.size) * sd)
-        if np.array_equal(new, out):
+            d = np.where(keep & (m > 0), (y - (tot[g] - y) / np.maximum(m, 1)) / np.sqrt(1.0 + 1.0 / np.maximum(m, 1)),
+                         np.nan)
+        a = np.abs(d)
+        if not np.any(np.isfinite(a)):
             break
-        out = new
-        sd = pooled(~out)[0]
+        top = np.nanmax(a)
+        near = np.flatnonzero(np.isfinite(a) & (a >= top * (1 - 1e-9)))
+        i = int(near[np.argmax(tie[near])])
+        keep[i] = False
+        sd, dof_left, _, _ = pooled(keep)
+        zs.append((top / sd if sd > 0 else float("inf"), float(dof_left)))
+        order.append(i)
+    out = np.zeros(n, bool)
+    out[order[:_esd_select(zs, n)]] = True
     sd, dof, _, _ = pooled(~out)
     return sd, dof, out
+
+
+def _pseudo_coefs(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return the normalised weights (L, C, R) of each interior point's pseudo-residual on its left
+    neighbour, itself and its right neighbour (Gasser et al. 1986): e = L y[:-2] + C y[1:-1] + R y[2:]."""
+    x0, x1, x2 = x[:-2], x[1:-1], x[2:]
+    span = x2 - x0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a = np.where(span > 0, (x2 - x1) / span, 0.5)
+    b = 1.0 - a
+    c = np.sqrt(a * a + b * b + 1.0)
+    return a / c, -1.0 / c, b / c
+
+
+def spike_statistic(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return (z per point in units of the noise SD, pseudo-residuals) of one ordered record (>= 5 points).
+
+    A single gross error A at point i moves the pseudo-residuals by A D[:, i] (D the pseudo-residual
+    operator, e = D y); the matched filter s = D^T e (Turin 1960, IRE Trans. IT-6, 311) is largest at the
+    erroneous point, edge points included, and under white noise of SD sigma s_i ~ N(0, sigma^2 (D^T D)^2_ii):
+    z_i = s_i / sqrt((D^T D)^2_ii) in units of sigma. D^T D is pentadiagonal, so this costs O(points).
+    """
+    n = x.size
+    L, C, R = _pseudo_coefs(x)
+    e = L * y[:-2] + C * y[1:-1] + R * y[2:]
+    s = np.zeros(n)
+    s[:-2] += L * e
+    s[1:-1] += C * e
+    s[2:] += R * e
+    d0 = np.zeros(n)
+    d0[:-2] += L * L
+    d0[1:-1] += C * C
+    d0[2:] += R * R
+    d1 = np.zeros(n - 1)  # (i, i+1)
+    d1[:-1] += L * C
+    d1[1:] += C * R
+    d2 = L * R  # (i, i+2)
+    q = d0 * d0
+    q[:-1] += d1 * d1
+    q[1:] += d1 * d1
+    q[:-2] += d2 * d2
+    q[2:] += d2 * d2
+    return s / np.sqrt(np.maximum(q, 1e-300)), e
+
+
+def _difference_outliers(x: np.ndarray, y: np.ndarray, segs: list[np.ndarray], n_rows: int) -> list[int]:
+    """Return the positions (into x, y) of outliers over the ordered segments (index arrays, >= 5 points).
+
+    Outliers by generalized ESD (Rosner 1983) on :func:`spike_statistic`: the point with the largest |z|
+    (in units of the current estimate) is removed, its z against the SD of the points left recorded, up to
+    :func:`max_outliers` times; the first i removed are outliers, i the last step above
+    :func:`outlier_threshold` (Bonferroni over the table's rows; Student's t with the pseudo-residuals'
+    effective degrees of freedom, m / :data:`PSEUDO_DOF_FACTOR`).
+    """
+    segs = [np.asarray(s_, int) for s_ in segs if len(s_) >= 5]
+    cache = [spike_statistic(x[s_], y[s_]) for s_ in segs]
+
+    def scale():
+        num = sum(float(e @ e) for _, e in cache)
+        cnt = sum(e.size for _, e in cache)
+        return (math.sqrt(num / cnt) if cnt else float("nan")), cnt
+
+    removed, zs = [], []
+    for _ in range(max_outliers(n_rows)):
+        best = None
+        for k, (z, _) in enumerate(cache):
+            if z.size == 0:
+                continue
+            j = int(np.argmax(np.abs(z)))
+            if best is None or abs(z[j]) > best[0]:
+                best = (abs(z[j]), k, j)
+        if best is None:
+            break
+        _, k, j = best
+        raw = abs(float(cache[k][0][j]))
+        removed.append(int(segs[k][j]))
+        segs[k] = np.delete(segs[k], j)
+        cache[k] = spike_statistic(x[segs[k]], y[segs[k]]) if segs[k].size >= 5 else (np.zeros(0), np.zeros(0))
+        sd, cnt = scale()
+        zs.append((raw / sd if sd > 0 else float("inf"), cnt / PSEUDO_DOF_FACTOR))
+    flagged = removed[:_esd_select(zs, n_rows)]
+    return flagged
 
 
 def _pseudo(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -412,25 +533,30 @@ def correct_for_correlation(noise: dict, corr: dict | None) -> dict:
     return out
 
 
-def noise_estimate(df: pd.DataFrame, response: str) -> dict:
+def noise_estimate(df: pd.DataFrame, response: str, fitted: np.ndarray | None = None) -> dict:
     """Return {sd, se, method, dof, reliable, outliers, correlated} of the measurement noise (response unit).
 
-    Replicates: pooled within-group SD at identical covariates; rows whose leave-one-out deviation from
-    their group exceeds :func:`outlier_threshold` robust SDs are flagged and left out (iterated).
+    Replicates: pooled within-group SD at identical covariates; outliers by generalized ESD on the
+    leave-one-out deviations (:func:`_replicate_noise`), left out.
     Otherwise the difference-based estimator of Gasser, Sroka & Jennen-Steinmetz (1986) along each
-    ordering (within trials and levels of the other covariates), the smallest taken; its scale starts
-    from the MAD of the pseudo-residuals, a row whose pseudo-residual exceeds the threshold (and its
-    neighbours') is flagged and left out. Along time/position, serial correlation of the noise (AR(1),
+    ordering (within trials and levels of the other covariates), the smallest taken; outliers by generalized
+    ESD on the matched-filter statistic of a single gross error (:func:`spike_statistic`, edge rows
+    included), left out. ``fitted`` (the model's predictions per row, fitted to all rows): the differences
+    are taken of the residuals y - fitted, so that curvature the model describes (a fast relaxation, a steep
+    speed law between sparse points) neither inflates the estimate nor is flagged as outliers; differences
+    of a smooth fitted curve are themselves smooth, so the estimator stays model-free in what is left.
+    In a replicate pair the row farther from the fit is the one flagged. Along time/position, serial correlation of the noise (AR(1),
     :func:`serial_correlation`, p < 0.01) is detected; the SD is then corrected for it (differences of
     correlated readings understate the noise) and ``correlated`` gives {covariate, rho, p_value}.
     ``outliers`` lists the flagged rows (0-based positions in ``df``).
     """
     y = df[response].to_numpy(dtype=float)
+    res = None if fitted is None else y - np.asarray(fitted, float)
     g = replicate_groups(df, response)
     counts = np.bincount(g)
     dof = int(np.sum(counts[counts >= 2] - 1))
     if dof >= 3 and (counts >= 2).sum() >= 2:
-        sd, dof, out = _replicate_noise(y, g)
+        sd, dof, out = _replicate_noise(y, g, res)
         rows = [int(i) for i in np.flatnonzero(out)]
         return {"sd": sd, "se": sd / math.sqrt(2 * max(dof, 1)), "dof": dof, "reliable": True, "outliers": rows,
                 "correlated": None,
@@ -439,43 +565,46 @@ def noise_estimate(df: pd.DataFrame, response: str) -> dict:
                           + (f"; {len(rows)} outlier rows left out" if rows else "") + ")"}
     covs = numeric_covariates(df, response)
     labels = [c for c in GROUP_LABELS if c in df.columns]
+    # other labels that change what was measured (statistic avg/max, case ...) split the records too
+    labels += [c for c in df.columns if c not in labels and c not in covs and c != response
+               and c not in NOTE_LABELS and df[c].nunique(dropna=False) > 1]
     found = []
-    for c in covs:
-        if df[c].nunique() < 3:
-            continue
-        others = [o for o in covs if o != c and df[o].nunique() <= max(10, len(df) // 10)]
-        d = df.reset_index(drop=True)
-        order = d.sort_values(labels + others + [c], kind="stable").index.to_numpy()
-        x = d[c].to_numpy(dtype=float)[order]
-        yy = y[order]
-        if labels + others:  # rows sorted by the labels first: each segment is one contiguous run (O(rows))
-            key = d.loc[order, labels + others].groupby(labels + others, sort=False, dropna=False).ngroup().to_numpy()
-            segs = np.split(np.arange(y.size), np.flatnonzero(key[1:] != key[:-1]) + 1)
-        else:
-            segs = [np.arange(y.size)]
-        segs = [s for s in segs if s.size >= 5]
-        if not segs:
-            continue
-        pseudo = [_pseudo(x[s], yy[s]) for s in segs]
-        sd0 = _robust_scale(np.concatenate(pseudo))
-        thr = outlier_threshold(y.size)
-        flagged = []
-        for s, e in zip(segs, pseudo):
-            z = np.abs(e) / sd0 if sd0 > 0 else np.zeros_like(e)
-            for j in np.flatnonzero(z > thr):
-                if z[j] >= z[max(j - 1, 0)] and z[j] >= z[min(j + 1, z.size - 1)]:
-                    flagged.append(int(order[s[j + 1]]))
-        fl = set(flagged)
-        gone = np.array(sorted(fl), int)
-        clean = [s[~np.isin(order[s], gone)] for s in segs]
-        clean = [s for s in clean if s.size >= 5]
-        if not clean:
-            continue
-        pe = [_pseudo(x[s], yy[s]) for s in clean]
-        allp = np.concatenate(pe)
-        sd = float(np.sqrt(np.mean(allp ** 2)))
-        corr = None
-        found.append((sd, c, sorted(fl), corr, int(allp.size)))
+    # segments of 5+ points first; a grid with fewer levels per covariate (4 speeds x 4 temperatures, no
+    # replicates) still has 3-4 points per segment: Gasser's pseudo-residuals need 3 (outliers are only
+    # searched in segments of 5+), and at least MIN_PSEUDO_SHORT of them are asked for
+    for min_pts in (5, 3):
+        for c in covs:
+            if df[c].nunique() < 3:
+                continue
+            others = [o for o in covs if o != c and df[o].nunique() <= max(10, len(df) // 10)]
+            d = df.reset_index(drop=True)
+            order = d.sort_values(labels + others + [c], kind="stable").index.to_numpy()
+            x = d[c].to_numpy(dtype=float)[order]
+            yy = (y if res is None else res)[order]
+            if labels + others:  # rows sorted by the labels first: each segment is one contiguous run (O(rows))
+                key = d.loc[order, labels + others].groupby(labels + others, sort=False, dropna=False).ngroup().to_numpy()
+                segs = np.split(np.arange(y.size), np.flatnonzero(key[1:] != key[:-1]) + 1)
+            else:
+                segs = [np.arange(y.size)]
+            segs = [s for s in segs if s.size >= min_pts]
+            if not segs:
+                continue
+            flagged = [int(order[i]) for i in _difference_outliers(x, yy, segs, y.size)]
+            fl = set(flagged)
+            gone = np.array(sorted(fl), int)
+            clean = [s[~np.isin(order[s], gone)] for s in segs]
+            clean = [s for s in clean if s.size >= min_pts]
+            if not clean:
+                continue
+            pe = [_pseudo(x[s], yy[s]) for s in clean]
+            allp = np.concatenate(pe)
+            if min_pts < 5 and allp.size < MIN_PSEUDO_SHORT:
+                continue  # a handful of 3-point curvatures measures the curve, not the noise
+            sd = float(np.sqrt(np.mean(allp ** 2)))
+            corr = None
+            found.append((sd, c, sorted(fl), corr, int(allp.size)))
+        if found:
+            break
     # correlated noise is a property of the noise: when an ordering shows it, its corrected estimate is used
     pool = [f for f in found if f[3]] or found
     best = min(pool, key=lambda f: f[0]) if pool else None
@@ -490,6 +619,7 @@ def noise_estimate(df: pd.DataFrame, response: str) -> dict:
             "method": f"difference-based (Gasser, Sroka & Jennen-Steinmetz 1986) along {how}"
                       + (f" within each {', '.join(labels)}" if labels else "")
                       + ": no replicates at identical covariates"
+                      + ("; differences of the residuals from the model fitted to all rows" if res is not None else "")
                       + (f"; {len(rows)} outlier rows left out" if rows else "")
                       + (f"; serially correlated noise along {how} (AR(1) rho = {corr['rho']:.2f}, p = "
                          f"{corr['p_value']:.2g}), SD corrected for it" if corr else "")}

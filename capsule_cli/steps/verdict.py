@@ -87,9 +87,12 @@ RULE_TEXT = (
     "With no candidate named, residual "
     "structure (trend, lack of fit, runs, periodogram; serial correlation of the noise along time/position "
     f"allowed for; Bonferroni over all tests, family alpha = {ALPHA_STRUCTURE:g}) names the covariate an effect "
-    "that is not built in depends on. Covariates collinear in the data (|r| >= "
+    "that is not built in depends on, unless two built-in effects on that covariate fitted together pass the same "
+    "F test (Bonferroni over candidates and pairs), lower the held-out error and remove at least "
+    f"{100 * PARTIAL_SHARE:g} % of it above the noise: then the one with the better own fit is named as a partial step. Covariates collinear in the data (|r| >= "
     f"{COLLINEAR_R:g}) are named together, never one of them alone. \"Nothing is missing\" only when the "
-    f"held-out error is within {EXCESS_Z:g} standard errors of the noise level; otherwise \"the data cannot tell\". "
+    f"held-out error is within {EXCESS_Z:g} standard errors of the noise level; otherwise \"the data cannot tell\" "
+    "(and a named effect whose held-out error stays above that is said to leave error unexplained). "
     f"At most {100 * (ALPHA_EFFECT + ALPHA_STRUCTURE):g} % of data sets with nothing missing get a finding "
     "(benchmarks/verdict_calibration.py).")
 
@@ -116,6 +119,8 @@ class FitSummary:
     covariates: tuple[str, ...] = ()
     structure: list[dict] = field(default_factory=list)
     at_bound: tuple[str, ...] = ()
+    #: for a pair of effects fitted together (``name`` "A+B"): the two effect names
+    members: tuple[str, ...] = ()
 
     @property
     def cv_rmse(self) -> float:
@@ -400,6 +405,52 @@ def _g(v: float) -> str:
     return "n/a" if v is None or not np.isfinite(v) else f"{v:.3g}"
 
 
+def _pair_verdict(y, base: FitSummary, candidates: Sequence[FitSummary], pairs: Sequence[FitSummary], noise: Noise,
+                  cov: str, groups, m: int, alpha: float, unit: str, noise_txt: str, corr_txt: str, sig, tests,
+                  expect: float = float("nan")) -> Verdict | None:
+    """Return a partial-step verdict when two built-in effects on ``cov`` together pass the rule (their
+    nested F test against the model as is at p < alpha / (m + pairs tried), lower held-out error, and at least
+    PARTIAL_SHARE of the held-out error above the noise level ``expect`` removed, as for a partial step), else None.
+    The member named first is the one whose own fit has the lower AICc (one with a parameter at a bound last);
+    the next diagnose finds the other."""
+    on = [p for p in pairs if cov in p.covariates]
+    if not on:
+        return None
+    n = np.asarray(y, float).size
+    mm = m + len(on)
+    ok = []
+    for p in on:
+        r0, r1 = _rss_pair(y, base, p, noise.correlated)
+        F, pv = nested_f_test(r0, base.n_free, r1, p.n_free, n)
+        d, se = crossval.paired_difference(base.sq_err, p.sq_err, groups)
+        pa = min(1.0, pv * mm) if np.isfinite(pv) else float("nan")
+        floor = expect ** 2 if noise.reliable and np.isfinite(expect) else 0.0
+        ex2 = base.cv_rmse ** 2 - floor
+        share = (base.cv_rmse ** 2 - p.cv_rmse ** 2) / ex2 if ex2 > 0 else 0.0
+        good = bool(np.isfinite(pa) and pa < alpha and d > 0 and share >= PARTIAL_SHARE)
+        tests.append(CandidateTest(p.name, F, pv, pa, d, se, good,
+                                   "passes (two effects at once)" if good else
+                                   f"two effects at once: F test p = {_g(pv)} (x {mm} = {_g(pa)}); "
+                                   + (f"removes {100 * share:.0f} % of the held-out error above the noise"
+                                      if d > 0 else "no lower held-out error")))
+        if good:
+            ok.append((aicc(p.rss, n, p.n_free), p, pv))
+    if not ok:
+        return None
+    _, best, pv = min(ok, key=lambda t: t[0])
+    singles = {c.name: c for c in candidates}
+    first = min(best.members, key=lambda nm: (bool(singles[nm].at_bound), aicc(singles[nm].rss, n, singles[nm].n_free))
+                if nm in singles else (True, float("inf")))
+    second = [nm for nm in best.members if nm != first][0]
+    msg = (f"partial step: {first} and {second} together cut held-out RMSE from {_g(base.cv_rmse)} to "
+           f"{_g(best.cv_rmse)} {unit} (F test p = {_g(pv)}, {len(on)} pairs of effects on {cov} tried because "
+           f"no single effect explains the dependence on {cov}: {sig[0]['test']} p = "
+           f"{_g(sig[0]['p_value'])}); add {first} and run diagnose again, which then tests {second}; "
+           f"{noise_txt}{corr_txt}")
+    return Verdict("missing_effect", first, cov, None, msg, partial=True, tests=list(tests), structure_used=list(sig),
+                   alternatives=[])
+
+
 # ---------------------------------------------------------------------------
 # the verdict
 
@@ -407,7 +458,8 @@ def _g(v: float) -> str:
 def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSummary], noise: Noise,
                    covariates: Mapping[str, np.ndarray], structure: Sequence[dict], groups: np.ndarray,
                    n_folds: int, ordered: Sequence[str] = (), unit: str = "", response: str = "response",
-                   alpha_effect: float = ALPHA_EFFECT, alpha_structure: float = ALPHA_STRUCTURE) -> Verdict:
+                   alpha_effect: float = ALPHA_EFFECT, alpha_structure: float = ALPHA_STRUCTURE,
+                   pairs: Sequence[FitSummary] = ()) -> Verdict:
     """Return the verdict (one of four outcomes) from the fits' arrays; pure: no files, no figures.
 
     y : observations per row [unit]; base : the model as is; candidates : model + one effect each
@@ -415,6 +467,9 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
     of the model as is (each record with covariate, test, p_value, p_adjusted, periodic_period);
     groups : cross-validation group per row; n_folds : K of the K-fold; ordered : covariates that form a
     record (time, position), for which a period is reported; unit : response unit for messages.
+    pairs : the model + two candidate effects at once (``members``), fitted when no single candidate passes
+    but the residuals depend on a covariate (:data:`PAIR_TEXT`): a shape two built-in effects make together
+    (a Stribeck drop below a power-law rise) is then named as a partial step, not as an effect to write.
     """
     y = np.asarray(y, float)
     n = y.size
@@ -504,6 +559,11 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
                        "diagnose again")
                 return Verdict("missing_effect", win.name, s["covariate"], per, msg, partial=True, tests=tests,
                                structure_used=left, alternatives=close)
+            if not periodic:
+                pv = _pair_verdict(y, base, candidates, pairs, noise, s["covariate"], groups, m, alpha_effect, unit,
+                                   noise_txt, corr_txt, own_left, tests, expect)
+                if pv is not None:
+                    return pv
             per = _period(structure, s["covariate"], alpha_structure) if s["covariate"] in ordered else per
             ptxt = f" (period {_g(per)})" if per else ""
             how = ("leaves a periodic residual" if periodic else
@@ -517,6 +577,16 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
         if left:
             msg += (f". Structure remains against {left[0]['covariate']} ({left[0]['test']}, "
                     f"p = {_g(left[0]['p_value'])}): after adding it, run diagnose again")
+        elif noise.reliable and np.isfinite(noise.sd):
+            # the tool's own numbers: does the winner bring the held-out error down to the noise level?
+            exp_w = noise.sd * math.sqrt(expected_cv_inflation(n, win.n_free, n_folds))
+            se_w = crossval.cv_rmse(win.sq_err, groups)[1]
+            se_w = math.hypot(se_w if np.isfinite(se_w) else 0.0,
+                              (noise.se or 0.0) * math.sqrt(expected_cv_inflation(n, win.n_free, n_folds)))
+            if win.cv_rmse > exp_w + EXCESS_Z * se_w:
+                msg += (f". With it the held-out RMSE ({_g(win.cv_rmse)} {unit}) still exceeds the {_g(exp_w)} {unit} "
+                        f"expected from the noise by more than {EXCESS_Z:g} standard errors ({_g(se_w)}): its form "
+                        "may not match the data, or a second effect is missing; after adding it, run diagnose again")
         return Verdict("missing_effect", win.name, cov, None, msg, tests=tests, structure_used=left,
                        alternatives=close)
 
@@ -530,6 +600,10 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
                    f"built-in candidate passes the rule). Measure with one varied at fixed others; {noise_txt}"
                    f"{corr_txt}")
             return Verdict("cannot_tell", None, None, None, msg, confounded=group, tests=tests, structure_used=sig)
+        pv = _pair_verdict(y, base, candidates, pairs, noise, cov, groups, m, alpha_effect, unit, noise_txt,
+                           corr_txt, sig, tests, expect)
+        if pv is not None:
+            return pv
         per = _period(structure, cov, alpha_structure) if cov in ordered else None
         ptxt = f" (period {_g(per)})" if per else ""
         msg = (f"an effect that is not built in depends on {cov}{ptxt}: write a plugin ({sig[0]['test']} "
