@@ -10,6 +10,14 @@ from capsule_cli.steps.verdict import (FitSummary, Noise, aicc, collinear_groups
 
 N = 24
 RNG = np.random.default_rng(5)
+
+
+@pytest.fixture(autouse=True)
+def _own_draws():
+    """Each test draws its data from its own generator (seed 5), whatever ran before it in this worker:
+    a module-wide generator made the data depend on how pytest-xdist shared the tests out."""
+    global RNG
+    RNG = np.random.default_rng(5)
 X = np.linspace(0.2, 12, N)
 GROUPS = np.arange(N)
 NOISE = Noise(1.0, 0.15, True, "test")
