@@ -9,6 +9,8 @@ P_f = 0.02 N: no chaos, so the numbers test the rule and the calibration, not lu
 """
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -16,6 +18,7 @@ import yaml
 
 from capsule_cli.effects import registry
 from capsule_cli.effects.model import build_model
+from capsule_cli.steps import crossval
 from capsule_cli.steps import dynamics_loop as DL
 from capsule_cli.steps.diagnose import all_effects
 
@@ -265,3 +268,93 @@ def test_trajectory_speed_law_fit_finds_its_valley(tmp_path):
     r = y - b.simulate(fit.theta)["pred"]
     assert float(np.sqrt(np.nanmean(r ** 2))) < 0.12  # noise 0.1 mm
     assert fit.theta[2] == pytest.approx(0.7, abs=0.03) and fit.theta[1] == pytest.approx(4.0, rel=0.1)
+
+
+def test_trajectory_modes_follow_the_best_fitting_model(tmp_path):
+    """Whether a run is compared by positions or by its average velocity is a property of the measured
+    run, taken from the best-fitting model tried, not from the model as is: a one-sided base at P_f = 0.01 N
+    is irregular at three of the four runs of configs/designs/trajectory_runs.csv, while the speed law that
+    made the data (a = 4 mN, n = 0.7) is periodic at all four (the base fitted in position mode to these
+    data ended irregular at every run: one average-velocity row per run, and diagnose named viscous drag)."""
+    design = pd.DataFrame({"run": ["r1", "r2", "r3", "r4"], "f_Hz": [25.0, 30.0, 35.0, 38.0],
+                           "Pd_N": [0.15, 0.15, 0.2, 0.2], "duration_s": [1.0] * 4})
+    truth = _model(tmp_path, "tsdf", ["speed_dependent_friction"], {"Pf_N": 0.02, "a_mN": 4.0, "n": 0.7},
+                   kind="trajectory", protocol=None)
+    df = DL.synthesize_trajectory(truth, design, 0.1, 100.0, 5)
+    base = _model(tmp_path, "tbase", params={"Pf_N": FREE_PF}, kind="trajectory", protocol=None)
+    bb = DL.DynBound(base, df)
+    irregular = {r: "average_velocity" for r in ("r1", "r3", "r4")} | {"r2": "position"}
+    assert DL.choose_modes(bb, np.array([0.01])) == irregular
+    bt = DL.DynBound(truth, df)
+    y = bt.observed()
+
+    def ev(bound, theta):
+        return SimpleNamespace(bound=bound, theta=theta, pred=bound.simulate(theta)["pred"],
+                               resid=y - bound.simulate(theta)["pred"])
+
+    e_base, e_truth = ev(bb, np.array([0.01])), ev(bt, None)
+    modes, who = DL.modes_of_best(e_base, [{"effect": SimpleNamespace(name="speed_dependent_friction"), "ev": e_truth}])
+    assert who == "speed_dependent_friction" and set(modes.values()) == {"position"}
+    # and the other way round: the best model decides, whichever it is
+    modes, who = DL.modes_of_best(e_truth, [{"effect": SimpleNamespace(name="x"), "ev": e_base}])
+    assert who == "the model as is" and set(modes.values()) == {"position"}
+    modes, who = DL.modes_of_best(e_base, [])
+    assert who == "the model as is" and modes == irregular
+
+
+def test_trajectory_noise_replicates_only_between_runs_at_one_drive(tmp_path):
+    """Frames at the same time in runs at other drives are not replicates (before: 4 runs at 4 drives,
+    0.1 mm noise, gave 'replicates' and 8.5 mm, the spread of four different motions); two runs at one drive
+    from rest are (the same motion, the camera's noise apart). Without replicates the difference-based
+    estimate is only a bound (frames undersample the motion) and says so."""
+    truth = _model(tmp_path, "tnull", params={"Pf_N": 0.02}, kind="trajectory", protocol=None)
+    four = pd.DataFrame({"run": ["r1", "r2", "r3", "r4"], "f_Hz": [25.0, 30.0, 35.0, 38.0],
+                         "Pd_N": [0.15, 0.15, 0.2, 0.2], "duration_s": [1.0] * 4})
+    df = DL.synthesize_trajectory(truth, four, 0.1, 100.0, 5)
+    noise = DL.noise_of(DL.DynBound(truth, df))
+    assert not noise["method"].startswith("replicates") and noise["reliable"] is False
+    twice = pd.concat([four, four.assign(run=["s1", "s2", "s3", "s4"])], ignore_index=True)
+    df2 = DL.synthesize_trajectory(truth, twice, 0.1, 100.0, 5)
+    noise2 = DL.noise_of(DL.DynBound(truth, df2))
+    assert noise2["method"].startswith("replicates") and noise2["reliable"] is True
+    assert noise2["sd"] == pytest.approx(0.1, rel=0.1)  # 404 pairs: SE about 3.5 %
+
+
+def _fake_ev(y, pred, cv_pred, k, groups, values=None):
+    """An evaluation as probe_verdict reads it: rss, k, y, cv_sq, cv_rmse, groups, bound.values."""
+    cv_sq = (y - cv_pred) ** 2
+    return SimpleNamespace(y=y, k=k, rss=float(np.sum((y - pred) ** 2)), cv_sq=cv_sq, groups=groups,
+                           cv_rmse=float(np.sqrt(cv_sq.mean())), theta=None,
+                           bound=SimpleNamespace(values=lambda th: dict(values or {})))
+
+
+def test_probe_verdict_names_the_covariate_only_when_the_probe_beats_every_built_in():
+    """probe_verdict (no engine): a probe that passes its F test and beats the best built-in by more than
+    PROBE_Z standard errors turns the verdict into 'not built in, depends on <covariate>'; one that is better
+    by less, or whose F test fails, leaves the verdict as it was."""
+    rng = np.random.default_rng(3)
+    n = 40
+    groups = np.arange(n)
+    y = rng.normal(0.0, 1.0, n)
+    miss = 5.0 * np.sin(np.arange(n))  # what the model as is misses
+    yy = y + miss
+    base = _fake_ev(yy, np.zeros(n), np.zeros(n), 1, groups)
+    builtin = _fake_ev(yy, 0.5 * miss, 0.5 * miss, 2, groups)
+    verdict = {"outcome": "missing_effect", "missing_effect": "viscous_drag", "covariate": None, "where": "w"}
+    eff_f = SimpleNamespace(name="probe_f_Hz", covariates=("f_Hz",),
+                            params=(SimpleNamespace(name="drive_f_scale"), SimpleNamespace(name="drive_f_exponent")))
+    vals = {"drive_f_scale": 0.8, "drive_f_exponent": -0.4}
+    cands = [{"effect": SimpleNamespace(name="viscous_drag"), "ev": builtin}]
+    good = {"effect": eff_f, "ev": _fake_ev(yy, miss, miss, 3, groups, vals)}
+    v = DL.probe_verdict(base, cands, [good], verdict, "mm/s")
+    assert v["outcome"] == "not_built_in" and v["covariate"] == "f_Hz" and v["missing_effect"] is None
+    assert v["closest"] == "viscous_drag" and "probe" in v["message"] and good["passes"] is True
+    # barely better than the built-in: within PROBE_Z standard errors, the verdict stands
+    wobble = 0.5 * miss + np.random.default_rng(1).normal(0.0, 0.3, n)
+    near = {"effect": eff_f, "ev": _fake_ev(yy, wobble, wobble, 3, groups, vals)}
+    d, se = crossval.paired_difference(builtin.cv_sq, near["ev"].cv_sq, groups)
+    assert 0 < d < DL.PROBE_Z * se  # the premise: better, by less than PROBE_Z standard errors
+    assert DL.probe_verdict(base, cands, [near], verdict, "mm/s") is verdict and near["passes"] is False
+    # no better than the model as is (F test fails): the verdict stands
+    none = {"effect": eff_f, "ev": _fake_ev(yy, np.zeros(n), np.zeros(n), 3, groups, vals)}
+    assert DL.probe_verdict(base, [], [none], verdict, "mm/s") is verdict and none["passes"] is False

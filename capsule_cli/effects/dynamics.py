@@ -46,7 +46,7 @@ from __future__ import annotations
 
 from ..config import load_param_set
 from ..errors import InputError
-from .registry import BaseModel, Effect, Param, register_base, register_effect
+from .registry import BaseModel, Effect, Param, register_base, register_effect, register_probe
 
 KINDS = ("progression", "trajectory")
 
@@ -154,3 +154,43 @@ for _kind in KINDS:
         source="seed 002 Fig 5 (quasi-periodic friction); physics.md section 3",
         params=(Param("kappa", 0.2, (-2.0, 2.0), off=0.0, description="tilt sensitivity of the friction level"),),
         covariates=(), apply=_not_a_transform))
+
+
+# ---------------------------------------------------------------------------------------------------
+# covariate probes (not effects: diagnose fits them to name the covariate of an effect that is not built in)
+
+#: reference drive of the probes' power laws (the middle of the seeds' drives: 10-50 Hz, 0.1-0.3 N;
+#: seed 000 section 5, seed 001 Figs 9-12). At the reference the probe changes nothing; away from it the
+#: drive force is scaled, so the base model's P_f keeps its meaning at the reference drive.
+PROBE_REFERENCE = {"f_Hz": 30.0, "Pd_N": 0.2}
+
+
+def _probe_apply(cov: str):
+    ref = PROBE_REFERENCE[cov]
+    key = f"drive_{cov.split('_')[0]}_exponent"
+    scale = f"drive_{cov.split('_')[0]}_scale"
+
+    def apply(f_Hz, Pd_N, duty, p):
+        x = f_Hz if cov == "f_Hz" else Pd_N
+        return f_Hz, Pd_N * p[scale] * (x / ref) ** p[key], duty
+    return apply
+
+
+for _kind in KINDS:
+    for _cov in PROBE_REFERENCE:
+        _u = _cov.split("_")[1]
+        register_probe(Effect(
+            name=f"probe_{_cov}", kind=_kind, role="drive", covariates=(_cov,),
+            description=(f"Covariate probe, not a physical model: the drive force scaled by a power of "
+                         f"{_cov}, s P_d ({_cov} / {PROBE_REFERENCE[_cov]:g} {_u})^b. diagnose fits it when no "
+                         f"built-in effect explains the data: if it explains them better than every built-in, "
+                         f"the missing effect depends on {_cov} (a generic dependence on the drive, fitted "
+                         "only to say which covariate; write a plugin for the physics). The scale s lets the "
+                         "drive's level move with its dependence (a coil's force that falls with frequency is "
+                         "lower at the reference too). Off: s = 1, b = 0."),
+            source="capsule-cli diagnose (covariate probe); no seed",
+            params=(Param(f"drive_{_cov.split('_')[0]}_scale", 1.0, (0.2, 5.0), off=1.0,
+                          description="scale s of the drive force at the reference"),
+                    Param(f"drive_{_cov.split('_')[0]}_exponent", 0.0, (-3.0, 3.0), off=0.0,
+                          description=f"exponent b of the drive scale ({_cov} / reference)^b")),
+            apply=_probe_apply(_cov), origin="probe"))

@@ -291,6 +291,24 @@ def _ensure_builtins() -> None:
     from . import dynamics, friction, pressure, relaxation  # noqa: F401  (register on import)
 
 
+#: covariate probes (dynamics): generic drive transforms that diagnose fits to find WHICH covariate an
+#: effect that is not built in depends on; not candidates and not listed as effects, but found by
+#: :func:`get_effect` so that a model holding one can be simulated (capsule_cli.effects.dynamics)
+_PROBES: dict[tuple[str, str], Effect] = {}
+
+
+def register_probe(eff: Effect) -> Effect:
+    """Register a covariate probe (see ``_PROBES``)."""
+    _PROBES[(eff.kind, eff.name)] = eff
+    return eff
+
+
+def probes(kind: str) -> list[Effect]:
+    """Return the covariate probes of ``kind`` by name."""
+    _ensure_builtins()
+    return sorted((e for e in _PROBES.values() if e.kind == kind), key=lambda e: e.name)
+
+
 def effects(kind: str | None = None) -> list[Effect]:
     """Return the registered effects (of one kind), built-ins first, then plugins, by name."""
     _ensure_builtins()
@@ -379,7 +397,7 @@ def get_effect(kind: str, name: str, where: str = "") -> Effect:
     """Return the effect ``name`` of ``kind`` (``<name>_<k>``: the k-th instance of a repeatable one);
     InputError with a suggestion when unknown."""
     _ensure_builtins()
-    eff = _EFFECTS.get((kind, name))
+    eff = _EFFECTS.get((kind, name)) or _PROBES.get((kind, name))
     if eff is None:
         split = _split_instance(name)
         orig = _EFFECTS.get((kind, split[0])) if split else None

@@ -53,6 +53,7 @@ from scipy.stats import qmc
 
 from ..dynamics import system as dsys
 from ..dynamics.model import STEADY_SETTLE_TOL, EngineOptions
+from ..effects import registry
 from ..effects.model import FreeParams, Model
 from ..effects.registry import Effect
 from ..errors import InputError
@@ -61,7 +62,7 @@ from ..tables import (Column, TableSchema, is_synthetic, provenance, write_json_
                       write_table, write_text_atomic)
 from . import crossval
 from .residual_tests import is_ordered, noise_estimate, structure_tests
-from .verdict import RULE_TEXT, FitSummary, Noise, decide_verdict
+from .verdict import ALPHA_EFFECT, RULE_TEXT, FitSummary, Noise, decide_verdict, nested_f_test
 
 DYN_KINDS = ("progression", "trajectory")
 #: response classes of dynamics.system.progression (contract section 2, verdict.regime)
@@ -73,6 +74,20 @@ XATOL = 2e-4  # Nelder-Mead stop: simplex size in box-scaled coordinates [-] (re
 FATOL_NOISE = 1e-2  # Nelder-Mead stop: cost change in units of the noise variance [-]
 #: how a trajectory run's drive is classified (steady response after 60 periods from rest, 16 recorded)
 RUN_CLASS_PROTOCOL = dsys.Protocol("rest", 60, 16)
+#: Trajectory diagnose: passes of fitting every model with the runs' comparison modes taken from the
+#: best-fitting model of the previous pass (:func:`modes_of_best`); 3 = the model as is's modes, then at
+#: most two changes (a change of modes refits every model once, about doubling the time).
+MODE_PASSES = 3
+#: covariate probes (progression): fitted when the best built-in candidate leaves a held-out error above
+#: this fraction of the model as is's (it removes less than 1 - 0.5^2 = 75 % of the squared error; a
+#: hidden built-in effect on the 40-condition grid leaves 2-5 %); see :func:`probe_verdict`
+PROBE_TRIGGER = 0.5
+#: a probe overrides the built-in verdict only when its held-out RMSE is below the best built-in's by more
+#: than this many standard errors of the paired difference (and it passes the F test)
+PROBE_Z = 2.0
+#: trajectory noise from the residuals of the best-fitting model: at least this many frames compared by
+#: position beyond its free parameters (fewer: the noise is only bounded, and the verdict says so)
+MIN_NOISE_FRAMES = 20
 COLD_STEP = 0.15  # initial Nelder-Mead simplex edge in box coordinates, full calibration [-]
 WARM_STEP = 0.02  # the same for warm-started refits (folds, bootstrap): a local refinement [-]
 PENALTY = 1e6  # standardised squared error of a row where the engine fails (ill-posed parameters)
@@ -733,14 +748,19 @@ def trajectory_noise(noise: dict, evs: Sequence[DynEvaluation]) -> dict:
     generating 0.05 mm in the tests); without replicates the residuals of the most flexible fitted model
     are the other bound. Both are upper bounds of the noise; the smaller is used and the method says which.
     """
-    best = min(evs, key=lambda e: float(np.nansum(e.resid ** 2)))
-    n, k = best.y.size, best.k
-    if n - k < 3:
-        return noise
-    sd = math.sqrt(float(np.nansum(best.resid ** 2)) / (n - k))
-    if noise.get("reliable", True) and np.isfinite(noise["sd"]) and noise["sd"] <= sd:
-        return noise
-    return _residual_noise(noise, sd, best, f"{n} frames, {k} free parameters",
+    pos = np.array([m == "position" for m, _, _ in evs[0].bound.rows])
+    best = min(evs, key=lambda e: float(np.nansum(e.resid[pos] ** 2)))
+    n, k = int(pos.sum()), best.k
+    if n - k < MIN_NOISE_FRAMES:
+        # the frames compared by position are too few to estimate the position noise from the residuals
+        # (an average-velocity row's residual holds the model's error of a whole run, not the camera's noise)
+        return {**noise, "reliable": False,
+                "method": f"{noise.get('method', '')}; frames that undersample the motion inflate it and only {n} "
+                          "frames are compared by position: an upper bound of the noise"}
+    sd = math.sqrt(float(np.nansum(best.resid[pos] ** 2)) / (n - k))
+    if np.isfinite(noise["sd"]) and noise["sd"] <= sd:
+        return noise  # replicates (an estimate), or the smaller of two bounds (still a bound)
+    return _residual_noise(noise, sd, best, f"{n} frames compared by position, {k} free parameters",
                            "which frames that undersample the motion inflate; an upper bound of the noise")
 
 
@@ -803,13 +823,22 @@ def noise_of(bound: DynBound) -> dict:
 
     progression: replicates (identical conditions) when present, else difference-based along the
     covariates, marked not reliable (an upper bound; :func:`progression_noise` revises it after the fits);
-    trajectory: difference-based along time within each run (position noise).
+    trajectory: replicate runs (the same drive) when present, else difference-based along time within
+    each run (position noise), marked not reliable (frames undersample the motion: an upper bound;
+    :func:`trajectory_noise` revises it after the fits).
     """
     resp = bound.response
     df = bound.df
     if bound.kind == "trajectory":
-        df = df[[c for c in ("run", "time_s", resp) if c in df.columns]]
+        # differences along time within each run; frames at the same time are replicates only in runs with
+        # the same drive (the drive as one text label: runs at other drives share frame times, not positions)
+        drive = df["run"].astype(str).map(lambda r: "|".join(map(str, bound.run_drive[r])))
+        df = df[[c for c in ("run", "time_s", resp) if c in df.columns]].assign(drive=drive)
     noise = noise_estimate(df, resp)
+    if bound.kind == "trajectory" and not str(noise.get("method", "")).startswith("replicates"):
+        # frames undersample a capsule that moves in steps at the drive frequency: an upper bound
+        # (diagnose revises it: trajectory_noise)
+        noise = {**noise, "reliable": False}
     if bound.kind == "progression" and not str(noise.get("method", "")).startswith("replicates"):
         # a progression speed jumps between neighbouring conditions (impacts appear and vanish), so the
         # differences hold signal: a bound, not an estimate (diagnose revises it: progression_noise)
@@ -1046,6 +1075,7 @@ def _metrics(ev: DynEvaluation, noise: dict, data_path: str, dhash: str, k_folds
         "cv": {"folds": int(np.unique(ev.folds).size), "requested_folds": k_folds, "groups": how,
                "n_groups": int(np.unique(ev.groups).size)},
         "noise_sd": noise["sd"], "noise_sd_se": noise["se"], "noise_method": noise["method"],
+        "noise_reliable": bool(noise.get("reliable", True)),
         "cv_rmse_over_noise": ev.cv_rmse / noise["sd"] if noise["sd"] else None,
         "bic": ev.bic, "params": param_table(ev),
         "intervals": ("95 % percentile bootstrap over cross-validation groups, "
@@ -1119,17 +1149,118 @@ def consistent_base(base: DynEvaluation, cands: Sequence[dict], budget: Budget, 
     return (ev, who) if ev.rss < base.rss else (base, None)
 
 
-def fit_candidate(model: Model, eff: Effect, df, base: DynEvaluation, data_path, budget: Budget, seed: int):
+def fit_candidate(model: Model, eff: Effect, df, base: DynEvaluation, data_path, budget: Budget, seed: int,
+                  previous: DynEvaluation | None = None):
     """Return {effect, model, ev} of model + eff (starts: the base fit with the effect at its declared
-    start values, the same with the effect off, then the scan)."""
+    start values, the same with the effect off, ``previous``'s fit (the same candidate on other comparison
+    rows) when given, then the scan)."""
     vals = base.bound.values(base.theta)
     m2 = model.with_values(vals).with_effect(eff)
     b2 = DynBound(m2, df, where=str(data_path), modes=getattr(base.bound, "modes", None), rk_rtol=budget.rk_rtol)
     off = m2.with_values({s.key: s.param.off for s in m2.specs if s.owner == eff.name})
     x_off = [s.value for s in off.specs if s.free]
+    extra = [x_off] + ([np.asarray(previous.theta, float)] if previous is not None else [])
     ev = evaluate(b2, base.sigma, base.folds, base.groups, x0=b2.x0, budget=budget, seed=seed,
-                  extra_starts=[x_off])
+                  extra_starts=extra)
     return {"effect": eff, "model": m2, "ev": ev}
+
+
+def _fit_all(model: Model, df, data_path, bound: DynBound, sigma: float, folds, groups, pool, budget: Budget,
+             seed: int, quiet: bool, previous: dict | None = None):
+    """Return (model as is, candidates, skipped, refit_from) fitted on ``bound``'s comparison rows.
+
+    previous: {'base': DynEvaluation, name: DynEvaluation} of an earlier pass on other rows (their fits
+    are added as starts)."""
+    from ..progress import track
+
+    prev = previous or {}
+    x0 = prev["base"].theta if "base" in prev else None
+    base = evaluate(bound, sigma, folds, groups, x0=x0, budget=budget, seed=seed)
+    cands, skipped = [], []
+    for eff in track(pool, "trying candidate effects", quiet=quiet):
+        try:
+            cands.append(fit_candidate(model, eff, df, base, data_path, budget, seed, previous=prev.get(eff.name)))
+        except NotImplementedError as exc:
+            skipped.append({"effect": eff.name, "reason": str(exc)})
+    base, refit_from = consistent_base(base, cands, budget, seed)
+    return base, cands, skipped, refit_from
+
+
+def modes_of_best(base: DynEvaluation, cands: Sequence[dict]) -> tuple[dict[str, str], str]:
+    """Return (comparison mode per run, name of the model they come from): the modes
+    (:func:`choose_modes`) of the best-fitting model tried (smallest in-sample sum of squared residuals
+    on the current rows), the best available description of the system that made the data.
+
+    Whether a run is irregular is a property of the measured run, not of the model as is: a model that
+    misses an effect can be chaotic where the data are periodic (one-sided base fitted to trajectories
+    made with a speed law: irregular at every run, while the speed law's response is periodic), and its
+    modes would reduce every run to one average-velocity row, too few to tell the effects apart."""
+    evs = [("the model as is", base)] + [(c["effect"].name, c["ev"]) for c in cands]
+    name, best = min(evs, key=lambda t: float(np.nansum(t[1].resid ** 2)) if np.isfinite(t[1].pred).all()
+                     else float("inf"))
+    return choose_modes(best.bound, best.theta), name
+
+
+def needs_probes(base: DynEvaluation, cands: Sequence[dict]) -> bool:
+    """Whether the covariate probes are fitted: no built-in candidate brings the held-out error below
+    PROBE_TRIGGER times the model as is's."""
+    best = min([c["ev"].cv_rmse for c in cands], default=base.cv_rmse)
+    return bool(best > PROBE_TRIGGER * base.cv_rmse)
+
+
+def probe_verdict(base: DynEvaluation, cands: Sequence[dict], probes: Sequence[dict], verdict: dict,
+                  unit: str, alpha: float = ALPHA_EFFECT) -> dict:
+    """Return the verdict, overridden by a covariate probe when one explains the data better than every
+    built-in effect: then an effect that is not built in depends on the probe's covariate.
+
+    A dynamics response is not smooth in the drive (impacts appear and vanish, the speed jumps between
+    neighbouring conditions), so the residual-structure tests that name a covariate for quasi-static data
+    see scatter, not a trend. Instead a probe (capsule_cli.effects.dynamics: the drive force scaled by a
+    power of one covariate, one free exponent) asks whether a generic dependence on that covariate explains
+    what no built-in does. It overrides when (a) its nested F test against the model as is passes at
+    ``alpha`` with Bonferroni over every candidate and probe tried, and (b) its held-out RMSE is below the
+    best built-in's by more than PROBE_Z standard errors of the paired difference. The message says that
+    the probe is not a physical model.
+    """
+    if not probes:
+        return verdict
+    m = len(cands) + len(probes)
+    n = base.y.size
+    best_b = min(cands, key=lambda c: c["ev"].cv_rmse) if cands else None
+    ok = []
+    for p in probes:
+        ev = p["ev"]
+        F, pv = nested_f_test(base.rss, base.k, ev.rss, ev.k, n)
+        p["f_test_p"] = pv
+        p["f_test_p_adjusted"] = min(1.0, pv * m) if np.isfinite(pv) else float("nan")
+        ref = base if best_b is None or best_b["ev"].cv_rmse > base.cv_rmse else best_b["ev"]
+        d, se = crossval.paired_difference(ref.cv_sq, ev.cv_sq, base.groups)
+        p["delta_cv_best_builtin"], p["delta_cv_best_builtin_se"] = d, se
+        passes = bool(np.isfinite(pv) and pv * m < alpha and d > PROBE_Z * se and d > 0)
+        p["passes"] = passes
+        if passes:
+            ok.append(p)
+    if not ok:
+        return verdict
+    win = min(ok, key=lambda p: p["ev"].cv_rmse)
+    cov = win["effect"].covariates[0]
+    vals = win["ev"].bound.values(win["ev"].theta)
+    sc, b = (float(vals[prm.name]) for prm in win["effect"].params)
+    closest = best_b["effect"].name if best_b else None
+    also = [p["effect"].covariates[0] for p in ok if p is not win]
+    msg = (f"an effect that is not built in depends on {cov}: write a plugin. No built-in effect explains the "
+           f"data" + (f" (the closest, {closest}, held-out RMSE {base.cv_rmse:.3g} -> {best_b['ev'].cv_rmse:.3g} "
+                      f"{unit})" if best_b else "")
+           + f"; a drive force scaled as s ({cov} / reference)^b, a covariate probe and not a physical model, "
+           f"cuts it to {win['ev'].cv_rmse:.3g} {unit} (s = {sc:.3g}, b = {b:.3g}, F test p = {win['f_test_p']:.3g} x {m} tried; "
+           f"better than the closest built-in by {win['delta_cv_best_builtin']:.3g} ± "
+           f"{win['delta_cv_best_builtin_se']:.2g} {unit})"
+           + (f"; a probe on {', '.join(also)} helps too, less" if also else ""))
+    where = verdict.get("where")
+    if where:
+        msg += f". Where the model as is fails: {where}"
+    return {**verdict, "outcome": "not_built_in", "missing_effect": None, "covariate": cov, "partial": False,
+            "closest": closest, "message": msg, "probe": win["effect"].name}
 
 
 def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_model=None, k_folds: int = 5,
@@ -1141,7 +1272,6 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
     subset is stated in diagnosis.json (``candidates_tried``) and the verdict's Bonferroni factor counts
     only those tried.
     """
-    from ..progress import track
     from .compare import data_hash
     from .diagnose import applicable_effects
 
@@ -1156,24 +1286,41 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
         pool = [e for e in pool if e.name in set(candidates)]
     bound, noise, sigma, groups, how, folds = _setup(model, df, data_path, k_folds, seed, budget)
     reliable = bool(noise.get("reliable", True))
-    base = evaluate(bound, sigma, folds, groups, budget=budget, seed=seed)
+    base, cands, skipped, refit_from = _fit_all(model, df, data_path, bound, sigma, folds, groups, pool, budget,
+                                                seed, quiet)
+    modes_from = "the model as is"
+    if bound.kind == "trajectory":
+        # the runs' comparison modes follow the best-fitting model tried; when they differ from the model as
+        # is's, every model is refitted on the new rows (its earlier fit a start); at most MODE_PASSES passes
+        seen = [dict(bound.modes)]
+        for _ in range(MODE_PASSES - 1):
+            modes, who = modes_of_best(base, cands)
+            if modes in seen:
+                break
+            seen.append(modes)
+            bound = DynBound(model, df, where=str(data_path), modes=modes, rk_rtol=budget.rk_rtol)
+            groups, how = bound.groups()
+            folds = crossval.assign_folds(groups, k_folds, seed)
+            prev = {"base": base} | {c["effect"].name: c["ev"] for c in cands}
+            base, cands, skipped, refit_from = _fit_all(model, df, data_path, bound, sigma, folds, groups, pool,
+                                                        budget, seed, quiet, previous=prev)
+            modes_from = who
     rf = bound.row_frame()
     covs = [c for c in ("f_Hz", "Pd_N", "duty", "time_s") if c in rf.columns and rf[c].nunique() >= 2]
     z = lambda ev: ev.resid / np.sqrt(sigma ** 2 + np.nan_to_num(ev.sim["spread"]) ** 2)  # noqa: E731
     corr = noise.get("correlated")
-    cands, skipped = [], []
-    for eff in track(pool, "trying candidate effects", quiet=quiet):
-        try:
-            cands.append(fit_candidate(model, eff, df, base, data_path, budget, seed))
-        except NotImplementedError as exc:
-            skipped.append({"effect": eff.name, "reason": str(exc)})
-    base, refit_from = consistent_base(base, cands, budget, seed)
+    probes = []
+    if bound.kind == "progression" and needs_probes(base, cands):
+        # no built-in explains the data: which covariate does the missing effect depend on? (probe_verdict)
+        for pe in registry.probes(model.kind):
+            if pe.covariates[0] in rf.columns and rf[pe.covariates[0]].nunique() >= 3:
+                probes.append(fit_candidate(model, pe, df, base, data_path, budget, seed))
     if bound.kind == "progression":
-        revised = progression_noise(noise, [base] + [c["ev"] for c in cands])
+        revised = progression_noise(noise, [base] + [c["ev"] for c in cands + probes])
         if revised is not noise:
             noise, sigma, reliable = revised, float(revised["sd"]), True
             base = base.with_sigma(sigma)
-            for c in cands:
+            for c in cands + probes:
                 c["ev"] = c["ev"].with_sigma(sigma)
     struct = structure_tests(rf, np.nan_to_num(z(base)), covs, correlation=corr)
     for c in cands:
@@ -1182,6 +1329,7 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
         noise = trajectory_noise(noise, [base] + [c["ev"] for c in cands])
         reliable = bool(noise.get("reliable", True))
     verdict = dynamics_verdict(base, cands, noise, float(noise["sd"]) if reliable else sigma, struct, covs, rf)
+    verdict = probe_verdict(base, cands, probes, verdict, UNIT[model.kind])
     cands.sort(key=lambda c: c["ev"].cv_rmse)
     dh = data_hash(data_path)
 
@@ -1208,17 +1356,36 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
         "candidates": [rec(c) for c in cands], "skipped_candidates": skipped,
         "residual_structure": struct,
         "candidates_tried": [c["effect"].name for c in cands],
+        "covariate_probes": [{"probe": p["effect"].name, "covariate": p["effect"].covariates[0],
+                              "form": p["effect"].description, "cv_rmse": p["ev"].cv_rmse,
+                              "cv_rmse_se": p["ev"].cv_rmse_se, "f_test_p": p.get("f_test_p"),
+                              "f_test_p_adjusted": p.get("f_test_p_adjusted"),
+                              "better_than_best_builtin_by": p.get("delta_cv_best_builtin"),
+                              "better_than_best_builtin_by_se": p.get("delta_cv_best_builtin_se"),
+                              "passes": p.get("passes"),
+                              "params": {k: v for k, v in param_table(p["ev"]).items() if v["free"]}} for p in probes],
+        "covariate_probes_rule": (f"fitted when no built-in candidate brings the held-out RMSE below "
+                                  f"{PROBE_TRIGGER:g} x the model as is's; a probe names the covariate when its F "
+                                  f"test passes (Bonferroni over candidates and probes) and its held-out RMSE is "
+                                  f"below the best built-in's by more than {PROBE_Z:g} standard errors"),
         "model_as_is_refitted_from": refit_from,
         "verdict": {k: v for k, v in verdict.items() if k != "where"},
         "where_it_fails": verdict["where"],
         "rule": RULE_TEXT + (" Dynamics: the F test and held-out errors use residuals standardised by the error "
                              "model (noise and the window spread of irregular responses); the regime is the "
-                             "response class where the model as is misfits most."),
+                             "response class where the model as is misfits most."
+                             + (" Progression: when no built-in candidate explains the data, covariate probes "
+                                "(the drive force scaled by a power of one covariate) are fitted; one that passes "
+                                "the F test (Bonferroni over candidates and probes) and beats every built-in by "
+                                f"more than {PROBE_Z:g} standard errors of held-out RMSE names its covariate "
+                                "(an effect that is not built in)." if model.kind == "progression" else "")),
         "budget": {**budget.__dict__, "seconds": time.perf_counter() - t0,
                    "base_seconds": base.seconds, "base_evaluations": bound.n_sim},
     }
     if bound.kind == "trajectory":
         result["runs_compared_by"] = dict(bound.modes)
+        result["runs_compared_by_from"] = (f"the response of {modes_from} (fitted) at each run's drive: "
+                                           "irregular (no period up to 8) -> average_velocity, else position")
     out.mkdir(parents=True, exist_ok=True)
     res = residual_frame(base)
     write_table(res, out / "residuals.parquet", residual_schema(res), _prov(model, seed, df, data_path, dh))
@@ -1278,6 +1445,17 @@ def diagnosis_markdown(r: dict) -> str:
                      f"{c['delta_bic']:.1f} | {c['n_free']} | {c['reason']} |")
     for s in r["skipped_candidates"]:
         lines.append(f"| {s['effect']} | not tried: {s['reason']} | | | | |")
+    if r.get("covariate_probes"):
+        lines += ["", "## Covariate probes (not physical models)", "", r["covariate_probes_rule"] + ".", "",
+                  f"| probe | held-out [{u}] | better than the best built-in by [{u}] | F test p | names it |",
+                  "| --- | --- | --- | --- | --- |"]
+        for p in r["covariate_probes"]:
+            lines.append(f"| {p['probe']} | {p['cv_rmse']:.3g} | {p['better_than_best_builtin_by']:.3g} ± "
+                         f"{p['better_than_best_builtin_by_se']:.2g} | {p['f_test_p']:.3g} | "
+                         f"{'yes' if p['passes'] else 'no'} |")
+    if r.get("runs_compared_by"):
+        lines += ["", "Runs compared by: " + ", ".join(f"{k}: {v}" for k, v in r["runs_compared_by"].items())
+                  + f" ({r.get('runs_compared_by_from', '')})."]
     if r.get("written_model"):
         lines += ["", "## Next step", "", f"`capsule-cli compare --model {r['written_model']} --data {r['data']} "
                   "--out DIR`"]
