@@ -250,17 +250,26 @@ def test_axis_scan_moves_one_parameter_at_a_time():
         assert u[i // 4] == pytest.approx((i % 4 + 0.5) / 4)
 
 
+# four 1 s runs (the design of configs/designs/trajectory_runs.csv)
+FOUR_RUNS = pd.DataFrame({"run": ["r1", "r2", "r3", "r4"], "f_Hz": [25.0, 30.0, 35.0, 38.0],
+                          "Pd_N": [0.15, 0.15, 0.2, 0.2], "duration_s": [1.0] * 4})
+
+
+def _speed_law_trajectories(tmp_path):
+    """Return (data, base model with P_f free, truth): a speed law a = 4 mN, n = 0.7 hidden in FOUR_RUNS at
+    100 frames/s with 0.1 mm noise."""
+    truth = _model(tmp_path, "tsdf", ["speed_dependent_friction"], {"Pf_N": 0.02, "a_mN": 4.0, "n": 0.7},
+                   kind="trajectory", protocol=None)
+    df = DL.synthesize_trajectory(truth, FOUR_RUNS, 0.1, 100.0, 5)
+    return df, _model(tmp_path, "tbase", params={"Pf_N": FREE_PF}, kind="trajectory", protocol=None), truth
+
+
 def test_trajectory_speed_law_fit_finds_its_valley(tmp_path):
     """A hidden speed law a = 4 mN, n = 0.7 (four 1 s runs at 100 frames/s, 0.1 mm noise; the design of
     configs/designs/trajectory_runs.csv): its fit from the effect's start (a = 8.778 mN, n = 0.25) follows the
     long valley of equal force over the measured speeds; before the one-at-a-time scan through the start it
     ended at the box edge n = 0.05 (RMSE 2.3 mm). Now at the truth and the noise (measured 0.100 mm)."""
-    design = pd.DataFrame({"run": ["r1", "r2", "r3", "r4"], "f_Hz": [25.0, 30.0, 35.0, 38.0],
-                           "Pd_N": [0.15, 0.15, 0.2, 0.2], "duration_s": [1.0] * 4})
-    truth = _model(tmp_path, "tsdf", ["speed_dependent_friction"], {"Pf_N": 0.02, "a_mN": 4.0, "n": 0.7},
-                   kind="trajectory", protocol=None)
-    df = DL.synthesize_trajectory(truth, design, 0.1, 100.0, 5)
-    base = _model(tmp_path, "tbase", params={"Pf_N": FREE_PF}, kind="trajectory", protocol=None)
+    df, base, _ = _speed_law_trajectories(tmp_path)
     eff = next(e for e in all_effects("trajectory") if e.name == "speed_dependent_friction")
     b = DL.DynBound(base.with_effect(eff), df)
     y = b.observed()
@@ -276,12 +285,7 @@ def test_trajectory_modes_follow_the_best_fitting_model(tmp_path):
     is irregular at three of the four runs of configs/designs/trajectory_runs.csv, while the speed law that
     made the data (a = 4 mN, n = 0.7) is periodic at all four (the base fitted in position mode to these
     data ended irregular at every run: one average-velocity row per run, and diagnose named viscous drag)."""
-    design = pd.DataFrame({"run": ["r1", "r2", "r3", "r4"], "f_Hz": [25.0, 30.0, 35.0, 38.0],
-                           "Pd_N": [0.15, 0.15, 0.2, 0.2], "duration_s": [1.0] * 4})
-    truth = _model(tmp_path, "tsdf", ["speed_dependent_friction"], {"Pf_N": 0.02, "a_mN": 4.0, "n": 0.7},
-                   kind="trajectory", protocol=None)
-    df = DL.synthesize_trajectory(truth, design, 0.1, 100.0, 5)
-    base = _model(tmp_path, "tbase", params={"Pf_N": FREE_PF}, kind="trajectory", protocol=None)
+    df, base, truth = _speed_law_trajectories(tmp_path)
     bb = DL.DynBound(base, df)
     irregular = {r: "average_velocity" for r in ("r1", "r3", "r4")} | {"r2": "position"}
     assert DL.choose_modes(bb, np.array([0.01])) == irregular
@@ -289,8 +293,8 @@ def test_trajectory_modes_follow_the_best_fitting_model(tmp_path):
     y = bt.observed()
 
     def ev(bound, theta):
-        return SimpleNamespace(bound=bound, theta=theta, pred=bound.simulate(theta)["pred"],
-                               resid=y - bound.simulate(theta)["pred"])
+        pred = bound.simulate(theta)["pred"]
+        return SimpleNamespace(bound=bound, theta=theta, pred=pred, resid=y - pred)
 
     e_base, e_truth = ev(bb, np.array([0.01])), ev(bt, None)
     modes, who = DL.modes_of_best(e_base, [{"effect": SimpleNamespace(name="speed_dependent_friction"), "ev": e_truth}])
@@ -308,8 +312,7 @@ def test_trajectory_noise_replicates_only_between_runs_at_one_drive(tmp_path):
     from rest are (the same motion, the camera's noise apart). Without replicates the difference-based
     estimate is only a bound (frames undersample the motion) and says so."""
     truth = _model(tmp_path, "tnull", params={"Pf_N": 0.02}, kind="trajectory", protocol=None)
-    four = pd.DataFrame({"run": ["r1", "r2", "r3", "r4"], "f_Hz": [25.0, 30.0, 35.0, 38.0],
-                         "Pd_N": [0.15, 0.15, 0.2, 0.2], "duration_s": [1.0] * 4})
+    four = FOUR_RUNS
     df = DL.synthesize_trajectory(truth, four, 0.1, 100.0, 5)
     noise = DL.noise_of(DL.DynBound(truth, df))
     assert not noise["method"].startswith("replicates") and noise["reliable"] is False
