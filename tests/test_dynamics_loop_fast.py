@@ -304,6 +304,10 @@ def test_trajectory_modes_follow_the_best_fitting_model(tmp_path):
     assert who == "the model as is" and set(modes.values()) == {"position"}
     modes, who = DL.modes_of_best(e_base, [])
     assert who == "the model as is" and modes == irregular
+    # two fits the data cannot rank (equal residuals): a run is compared by position if either is periodic there
+    tie = SimpleNamespace(bound=bb, theta=np.array([0.01]), pred=e_truth.pred, resid=e_truth.resid)
+    modes, who = DL.modes_of_best(tie, [{"effect": SimpleNamespace(name="speed_dependent_friction"), "ev": e_truth}])
+    assert set(modes.values()) == {"position"} and "speed_dependent_friction" in who and "model as is" in who
 
 
 def test_trajectory_noise_replicates_only_between_runs_at_one_drive(tmp_path):

@@ -1186,19 +1186,35 @@ def _fit_all(model: Model, df, data_path, bound: DynBound, sigma: float, folds, 
     return base, cands, skipped, refit_from
 
 
+def _modes_key(modes: Mapping[str, str]) -> tuple:
+    return tuple(sorted(modes.items()))
+
+
 def modes_of_best(base: DynEvaluation, cands: Sequence[dict]) -> tuple[dict[str, str], str]:
-    """Return (comparison mode per run, name of the model they come from): the modes
-    (:func:`choose_modes`) of the best-fitting model tried (smallest in-sample sum of squared residuals
-    on the current rows), the best available description of the system that made the data.
+    """Return (comparison mode per run, the models they come from): the modes (:func:`choose_modes`) of the
+    best-fitting models tried, the best available description of the system that made the data.
+
+    "Best" is the smallest in-sample sum of squared residuals on the current rows, and every model within
+    2 standard deviations of a chi-square of it (SSE <= SSE_min (1 + 2 sqrt(2 / n)), n rows): models the data
+    cannot rank. A run is compared by position if any of them is periodic there (a speed law with n = 1.01 and
+    viscous drag fit the same frames to the noise, and one may still be classed irregular where the other
+    settles), by its average velocity only if all of them are irregular there.
 
     Whether a run is irregular is a property of the measured run, not of the model as is: a model that
     misses an effect can be chaotic where the data are periodic (one-sided base fitted to trajectories
     made with a speed law: irregular at every run, while the speed law's response is periodic), and its
     modes would reduce every run to one average-velocity row, too few to tell the effects apart."""
     evs = [("the model as is", base)] + [(c["effect"].name, c["ev"]) for c in cands]
-    name, best = min(evs, key=lambda t: float(np.nansum(t[1].resid ** 2)) if np.isfinite(t[1].pred).all()
-                     else float("inf"))
-    return choose_modes(best.bound, best.theta), name
+    sse = [float(np.nansum(e.resid ** 2)) if np.isfinite(e.pred).all() else float("inf") for _, e in evs]
+    top = min(sse)
+    n = max(len(base.resid), 1)
+    near = [(name, e) for (name, e), v in zip(evs, sse) if v <= top * (1.0 + 2.0 * math.sqrt(2.0 / n))]
+    near.sort(key=lambda t: sse[[x[0] for x in evs].index(t[0])])
+    modes = {}
+    for _, e in near:
+        for r, m in choose_modes(e.bound, e.theta).items():
+            modes[r] = "position" if "position" in (m, modes.get(r, m)) else m
+    return modes, " and ".join(name for name, _ in near)
 
 
 def needs_probes(base: DynEvaluation, cands: Sequence[dict]) -> bool:
@@ -1290,14 +1306,24 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
                                                 seed, quiet)
     modes_from = "the model as is"
     if bound.kind == "trajectory":
-        # the runs' comparison modes follow the best-fitting model tried; when they differ from the model as
-        # is's, every model is refitted on the new rows (its earlier fit a start); at most MODE_PASSES passes
-        seen = [dict(bound.modes)]
+        # the runs' comparison modes follow the best-fitting model tried; when they differ from the current
+        # ones, every model is refitted on the new rows (its earlier fit a start); at most MODE_PASSES passes.
+        # A cycle (the best model on rows A says B, on rows B says A) is settled by comparing by position every
+        # run that either says is periodic (positions tell more; a run goes to its average velocity only when
+        # both agree it is irregular); a pass already fitted on those rows is reused.
+        done = {_modes_key(bound.modes): (bound, groups, how, folds, base, cands, skipped, refit_from, modes_from)}
         for _ in range(MODE_PASSES - 1):
             modes, who = modes_of_best(base, cands)
-            if modes in seen:
+            if modes == bound.modes:
                 break
-            seen.append(modes)
+            if _modes_key(modes) in done:
+                modes = {r: "position" if "position" in (m, bound.modes[r]) else m for r, m in modes.items()}
+                who = (f"{who} and {modes_from} (their modes alternate): position wherever either model's "
+                       "response is periodic")
+                if _modes_key(modes) in done:
+                    bound, groups, how, folds, base, cands, skipped, refit_from, _ = done[_modes_key(modes)]
+                    modes_from = who
+                    break
             bound = DynBound(model, df, where=str(data_path), modes=modes, rk_rtol=budget.rk_rtol)
             groups, how = bound.groups()
             folds = crossval.assign_folds(groups, k_folds, seed)
@@ -1305,6 +1331,7 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
             base, cands, skipped, refit_from = _fit_all(model, df, data_path, bound, sigma, folds, groups, pool,
                                                         budget, seed, quiet, previous=prev)
             modes_from = who
+            done[_modes_key(modes)] = (bound, groups, how, folds, base, cands, skipped, refit_from, modes_from)
     rf = bound.row_frame()
     covs = [c for c in ("f_Hz", "Pd_N", "duty", "time_s") if c in rf.columns and rf[c].nunique() >= 2]
     z = lambda ev: ev.resid / np.sqrt(sigma ** 2 + np.nan_to_num(ev.sim["spread"]) ** 2)  # noqa: E731
