@@ -75,7 +75,7 @@ FATOL_NOISE = 1e-2  # Nelder-Mead stop: cost change in units of the noise varian
 #: how a trajectory run's drive is classified (steady response after 60 periods from rest, 16 recorded)
 RUN_CLASS_PROTOCOL = dsys.Protocol("rest", 60, 16)
 #: Trajectory diagnose: passes of fitting every model with the runs' comparison modes taken from the
-#: best-fitting model of the previous pass (:func:`modes_of_best`); 3 = the model as is's modes, then at
+#: best-fitting models of the previous pass (:func:`modes_of_best`); 3 = the model as is's modes, then at
 #: most two changes (a change of modes refits every model once, about doubling the time).
 MODE_PASSES = 3
 #: covariate probes (progression): fitted when the best built-in candidate leaves a held-out error above
@@ -1208,13 +1208,13 @@ def modes_of_best(base: DynEvaluation, cands: Sequence[dict]) -> tuple[dict[str,
     sse = [float(np.nansum(e.resid ** 2)) if np.isfinite(e.pred).all() else float("inf") for _, e in evs]
     top = min(sse)
     n = max(len(base.resid), 1)
-    near = [(name, e) for (name, e), v in zip(evs, sse) if v <= top * (1.0 + 2.0 * math.sqrt(2.0 / n))]
-    near.sort(key=lambda t: sse[[x[0] for x in evs].index(t[0])])
+    near = sorted(((v, name, e) for (name, e), v in zip(evs, sse) if v <= top * (1.0 + 2.0 * math.sqrt(2.0 / n))),
+                  key=lambda t: t[0])
     modes = {}
-    for _, e in near:
+    for _, _, e in near:
         for r, m in choose_modes(e.bound, e.theta).items():
             modes[r] = "position" if "position" in (m, modes.get(r, m)) else m
-    return modes, " and ".join(name for name, _ in near)
+    return modes, " and ".join(name for _, name, _ in near)
 
 
 def needs_probes(base: DynEvaluation, cands: Sequence[dict]) -> bool:
@@ -1231,8 +1231,8 @@ def probe_verdict(base: DynEvaluation, cands: Sequence[dict], probes: Sequence[d
 
     A dynamics response is not smooth in the drive (impacts appear and vanish, the speed jumps between
     neighbouring conditions), so the residual-structure tests that name a covariate for quasi-static data
-    see scatter, not a trend. Instead a probe (capsule_cli.effects.dynamics: the drive force scaled by a
-    power of one covariate, one free exponent) asks whether a generic dependence on that covariate explains
+    see scatter, not a trend. Instead a probe (capsule_cli.effects.dynamics: the drive force scaled as
+    s (covariate / reference)^b, two free parameters) asks whether a generic dependence on that covariate explains
     what no built-in does. It overrides when (a) its nested F test against the model as is passes at
     ``alpha`` with Bonferroni over every candidate and probe tried, and (b) its held-out RMSE is below the
     best built-in's by more than PROBE_Z standard errors of the paired difference. The message says that
