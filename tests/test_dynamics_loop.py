@@ -5,6 +5,8 @@ within the CI budget; the 40-condition case is in benchmarks/bench_dynamics_loop
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -190,4 +192,32 @@ def test_unavailable_effects_named_once_the_engine_has_them(tmp_path, effect, pa
     r = _diagnose(tmp_path, truth)
     assert r["verdict"]["missing_effect"] == effect, r["verdict"]["message"]
     win = next(c for c in r["candidates"] if c["effect"] == effect)
+    assert win["cv_rmse_not_irregular"] <= 1.2 * NOISE
+
+
+@pytest.mark.slow
+def test_prototype_secondary_constraint_on_forty_conditions_fits_to_noise(tmp_path):
+    """A secondary constraint at the prototype's values (G_2 = 0.1 mm, k_b = 97.06 N/mm, c_b = 0.35 N s/m;
+    seed 002 Table 2), hidden in the 40-condition design (configs/designs/progression_grid.csv), one value per
+    condition, full effort. Before the base re-fit start (P_f by the median absolute residual, the effect at its
+    start values) and the starting-state spread on periodic conditions, the fit stopped at G_2 = 0.139 mm and
+    k_b = 2.7e5 N/m (held-out 12.2 mm/s on the conditions that are not irregular); now at the truth, held-out
+    0.55 against the noise 0.5 (measured, session 8: 37 s of one candidate)."""
+    from capsule_cli.steps.diagnose import all_effects
+    from capsule_cli.steps.synth import read_design
+
+    root = Path(__file__).resolve().parents[1]
+    base = build_model(root / "configs/models/progression_base.yaml")  # the demo's base: P_f free, its protocol
+    eff = next(e for e in all_effects("progression") if e.name == "secondary_constraint")
+    truth = base.with_effect(eff).with_values({})
+    design = read_design(root / "configs/designs/progression_grid.csv", "progression")
+    df = DL.synthesize_progression(truth, design, NOISE, 1, 4)
+    path = tmp_path / "sec40_synthetic.csv"
+    df.to_csv(path, index=False)
+    r = DL.run_diagnose(base, df, str(path), tmp_path / "d", k_folds=5, seed=0, figures=False,
+                        budget=DL.EFFORTS["full"], candidates=["secondary_constraint"])
+    assert r["verdict"]["missing_effect"] == "secondary_constraint", r["verdict"]["message"]
+    win = r["candidates"][0]
+    assert win["params"]["gap_back_mm"]["value"] == pytest.approx(0.1, rel=0.05)
+    assert win["params"]["constraint_back_N_m"]["value"] == pytest.approx(97060.0, rel=0.05)
     assert win["cv_rmse_not_irregular"] <= 1.2 * NOISE

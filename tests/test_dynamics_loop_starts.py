@@ -1,4 +1,4 @@
-"""Starting-state spread of irregular progression conditions (issue 12 item 3: "where the response is irregular
+"""Starting-state spread of progression conditions (issue 12 item 3: "where the response is irregular
 (chaotic or multistable), its spread over windows and starting states is estimated and enters the error model").
 
 The case: the one-sided base with a secondary constraint at G_2 = 0.3 mm (P_f = 0.02 N, k_b and c_b at seed 002
@@ -54,13 +54,15 @@ def test_zero_offset_is_exact_rest_and_offsets_need_the_rest_protocol():
         dsys.progression(sysm, f, pdn, protocol=dsys.Protocol("up", 60, 24), start_offset_m=1e-6)
 
 
-def test_start_spread_only_on_irregular_conditions_and_never_below_the_window_term(case):
+def test_start_spread_on_every_condition_and_never_below_the_window_term(case):
+    """Every condition is rerun from the starting states (a periodic response can coexist with another
+    attractor); where the starts settle on one periodic orbit they agree far below any noise (measured here:
+    the 20 periodic conditions within 1.6e-5 mm/s)."""
     _, plain, starts = case
     irregular = plain["cls"].astype(str) == "irregular"
     assert 8 <= irregular.sum() < 40  # the case has both kinds
-    # periodic conditions are untouched: same prediction, zero spread
-    assert np.array_equal(plain["pred"][~irregular], starts["pred"][~irregular])
-    assert np.all(starts["spread"][~irregular] == 0.0)
+    assert np.all(np.abs(plain["pred"][~irregular] - starts["pred"][~irregular]) < 1e-4)
+    assert np.all(starts["spread"][~irregular] < 1e-4)
     # the starting-state term only adds to the window term
     assert np.all(starts["spread"] >= plain["spread"] - 1e-12)
 
