@@ -602,13 +602,7 @@ def axis_scan(u0: np.ndarray, k: int, n: int) -> list[np.ndarray]:
     n evenly spaced box values (the others at u0). It finds a start in a long curved valley that the
     space-filling scan misses in k dimensions (a speed law's rise a against its exponent n: the same force
     over the measured speeds for many pairs)."""
-    out = []
-    for i in range(k):
-        for v in (np.arange(n) + 0.5) / n:
-            u = np.array(u0, float)
-            u[i] = v
-            out.append(u)
-    return out
+    return [u for i in range(k) for u in line_search_points(u0, i, n)]
 
 
 #: points of each line of the base re-fit start (:func:`line_search_points`), and the levels of refinement
@@ -1301,7 +1295,7 @@ def probe_verdict(base: DynEvaluation, cands: Sequence[dict], probes: Sequence[d
     ok = []
     for p in probes:
         ev = p["ev"]
-        F, pv = nested_f_test(base.rss, base.k, ev.rss, ev.k, n)
+        _, pv = nested_f_test(base.rss, base.k, ev.rss, ev.k, n)
         p["f_test_p"] = pv
         p["f_test_p_adjusted"] = min(1.0, pv * m) if np.isfinite(pv) else float("nan")
         ref = base if best_b is None or best_b["ev"].cv_rmse > base.cv_rmse else best_b["ev"]
