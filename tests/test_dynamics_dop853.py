@@ -37,11 +37,32 @@ def slip_case():
     return p, y
 
 
-def _step(p, y, s, h):
+def _step(p, y, s, h, full=True):
     k1, K, yt, y1, k7 = np.zeros(E.NY), np.zeros((E.DOP_NK, E.NY)), np.zeros(E.NY), np.zeros(E.NY), np.zeros(E.NY)
     E.rk_rhs(p, 0, 1.0, s, 0.0, y, k1)
-    E.dop853_step(p, 0, 1.0, s, h, 0.0, y, k1, K, yt, y1, k7, False, False, 0.0, NOPLUG, np.zeros(1))
+    E.dop853_step(p, 0, 1.0, s, h, 0.0, y, k1, K, yt, y1, k7, False, False, 0.0, NOPLUG, np.zeros(1), full)
     return y1, K, yt
+
+
+def test_stage_states_of_the_energy_integrals_are_not_needed(slip_case):
+    """full=False (a rigid wall) skips the stage states of the energy integrals and d, which the
+    right-hand side does not read: the stages, the step (energy integrals included) and its
+    dense output are the same to the bit as with full=True."""
+    p, y = slip_case
+    y = y.copy()
+    y[4:8] = (1e-3, 2e-3, 3e-3, 4e-3)  # energy integrals already under way
+    ya, Ka, yta = _step(p, y, 0.003, 1e-3, True)
+    yb, Kb, ytb = _step(p, y, 0.003, 1e-3, False)
+    assert np.array_equal(ya, yb) and np.array_equal(Ka[:13], Kb[:13])
+    assert ya[4] != y[4] and ya[7] != y[7]  # drive work and friction dissipation moved
+    outs = []
+    for full, (y1, K, yt) in ((True, (ya, Ka, yta)), (False, (yb, Kb, ytb))):
+        rc = np.zeros((8, E.NY))
+        E.dop853_dense(p, 0, 1.0, 0.003, 1e-3, 0.0, y, y1, K, yt, rc, False, False, 0.0, NOPLUG, np.zeros(1), full)
+        out = np.zeros(E.NY)
+        E.dense_eval(rc, 0.37, out)
+        outs.append(out.copy())
+    assert np.array_equal(outs[0], outs[1])
 
 
 def test_step_is_eighth_order_and_dense_output_seventh(slip_case):
@@ -61,7 +82,7 @@ def test_step_is_eighth_order_and_dense_output_seventh(slip_case):
         y1, K, yt = _step(p, y, s0, h)
         errs.append(abs(y1[1] - yr[1]))
         rc = np.zeros((8, E.NY))
-        E.dop853_dense(p, 0, 1.0, s0, h, 0.0, y, y1, K, yt, rc, False, False, 0.0, NOPLUG, np.zeros(1))
+        E.dop853_dense(p, 0, 1.0, s0, h, 0.0, y, y1, K, yt, rc, False, False, 0.0, NOPLUG, np.zeros(1), True)
         out = np.zeros(E.NY)
         E.dense_eval(rc, 0.0, out)
         assert np.array_equal(out[:4], y[:4])

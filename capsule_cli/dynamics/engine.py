@@ -77,6 +77,18 @@ from llvmlite import ir
 from numba import njit, objmode, prange, types
 from numba.extending import intrinsic
 
+# Compiled kernels that allocate nothing are built without numba's reference counting (NRT).
+# With it, every call of a kernel that takes an array (the parameter row, the state, the work
+# arrays) does an atomic increment and decrement of that array's reference count through two
+# external calls, which LLVM cannot remove even where it inlines the kernel: about 15 ns per
+# call, 80 % of the right-hand side of the adaptive segment (measured: contact_terms in a loop,
+# 16.3 ns with NRT, 0.6 ns without; the eq 22 map point 287 -> 139 us per period, outputs
+# bit-identical on 35 runs). The arrays such a kernel receives are owned by its caller
+# (run_core_at, which keeps NRT because it allocates), so nothing is freed under it.
+# ``_nrt`` is numba's own flag for this (numba.core.options, pinned numba 0.68.1); a kernel
+# built with it that tried to allocate would fail to compile, not misbehave.
+kernel = njit(cache=True, _nrt=False)
+
 # ---------------------------------------------------------------------------
 # parameter vector (SI), built by capsule_cli.dynamics.model.pack_params
 I_MM, I_MC, I_K, I_C, I_G1, I_K1, I_C1, I_G2, I_KB, I_CB, I_BACK = range(11)
@@ -152,7 +164,7 @@ GL_W = np.array([0.2369268850561891, 0.4786286704993665, 0.5688888888888889, 0.4
 # small helpers
 
 
-@njit(cache=True)
+@kernel
 def contact_terms(p, contact):
     """Return (K, C, F0) of F_i = K x_r + C v_r + F0 in a contact state (eq 20; seed 001 App. A)."""
     K = p[I_K]
@@ -169,7 +181,7 @@ def contact_terms(p, contact):
     return K, C, F0
 
 
-@njit(cache=True)
+@kernel
 def contact_of(p, xr):
     """Return the contact state of a relative displacement (0 none, 1 front, 2 back)."""
     if xr >= p[I_G1]:
@@ -179,7 +191,7 @@ def contact_of(p, xr):
     return 0
 
 
-@njit(cache=True)
+@kernel
 def tilt_factor(p, xr):
     """Return the tilt scaling max(0, 1 + kappa x_r / G_1) of the friction levels (effect
     ``tilt_friction``, physics.md section 3; seed 002 Fig 5); exactly 1 when kappa = 0."""
@@ -189,7 +201,7 @@ def tilt_factor(p, xr):
     return fac if fac > 0.0 else 0.0
 
 
-@njit(cache=True)
+@kernel
 def friction_level(p, V, xr):
     """Return the friction level [N] at slip speed V >= 0 [m/s] and relative displacement x_r [m]:
     Coulomb, or the speed law of eqs 22-23 held below V_min, scaled by the tilt factor."""
@@ -202,14 +214,14 @@ def friction_level(p, V, xr):
     return L
 
 
-@njit(cache=True)
+@kernel
 def kinetic_level(p, V, xr):
     """Return the resisting force [N] on a shell slipping at speed |V| [m/s] with relative
     displacement x_r [m]: :func:`friction_level` plus viscous drag c_v |V| (``viscous_drag``)."""
     return friction_level(p, V, xr) + p[I_CV] * V
 
 
-@njit(cache=True)
+@kernel
 def drive_force(p, s, fe_level):
     """Return F_e at time s within the period (harmonic) or the square-wave level."""
     if p[I_WAVE] < 0.5:
@@ -217,7 +229,7 @@ def drive_force(p, s, fe_level):
     return fe_level
 
 
-@njit(cache=True)
+@kernel
 def stored_energy(p, xr, vr, Vc):
     """Return kinetic + spring + contact-spring energy [J]."""
     Vm = Vc + vr
@@ -231,7 +243,7 @@ def stored_energy(p, xr, vr, Vc):
     return E
 
 
-@njit(cache=True)
+@kernel
 def decide_shell(p, contact, xr, vr, fe, Fm, Fc, dFc):
     """Return the shell state at V_c = 0 by the set-valued law (eqs 21-23).
 
@@ -279,7 +291,7 @@ def decide_shell(p, contact, xr, vr, fe, Fm, Fc, dFc):
 # closed-form segments
 
 
-@njit(cache=True)
+@kernel
 def basis(tau, s0, md, Om, B):
     """Fill B with the NB basis functions of a linear mode at segment time tau.
 
@@ -338,14 +350,14 @@ def basis(tau, s0, md, Om, B):
         B[8] = 0.0
 
 
-@njit(cache=True)
+@kernel
 def dot9(c, B):
     """Value of the basis combination with coefficients c (all NB functions)."""
     return (c[0] * B[0] + c[1] * B[1] + c[2] * B[2] + c[3] * B[3] + c[4] * B[4] + c[5] * B[5] + c[6] * B[6]
             + c[7] * B[7] + c[8] * B[8])
 
 
-@njit(cache=True)
+@kernel
 def basis_base(tau, s0, md, Om, B):
     """:func:`basis` for a base mode (one oscillator slot, slot 2 unused: B[7], B[8] stay 0)."""
     e = math.exp(md[1] * tau)
@@ -370,13 +382,22 @@ def basis_base(tau, s0, md, Om, B):
     B[6] = tau * tau
 
 
-@njit(cache=True)
+@kernel
 def dot_base(c, B):
     """:func:`dot9` over the first seven functions (a base mode)."""
     return c[0] * B[0] + c[1] * B[1] + c[2] * B[2] + c[3] * B[3] + c[4] * B[4] + c[5] * B[5] + c[6] * B[6]
 
 
-@njit(cache=True)
+@kernel
+def dot_base_row(c, e, B):
+    """:func:`dot_base` of row e of the coefficient array c. The driver (which keeps numba's reference
+    counting, see ``kernel``) calls this in its scan instead of dot_base(c[e], B): the row view
+    c[e] costs a reference-count increment and decrement per call."""
+    return (c[e, 0] * B[0] + c[e, 1] * B[1] + c[e, 2] * B[2] + c[e, 3] * B[3] + c[e, 4] * B[4]
+            + c[e, 5] * B[5] + c[e, 6] * B[6])
+
+
+@kernel
 def deriv_base(c, md, Om, out):
     """:func:`deriv_coefs` for a base mode (one oscillator slot)."""
     out[0] = md[1] * c[0] + c[1]
@@ -388,7 +409,7 @@ def deriv_base(c, md, Om, out):
     out[6] = 0.0
 
 
-@njit(cache=True)
+@kernel
 def deriv_coefs(c, md, Om, out):
     """Coefficients of d/dtau of a basis combination (a leaf function: slots written out)."""
     k = md[0]
@@ -418,7 +439,7 @@ def deriv_coefs(c, md, Om, out):
         out[8] = 0.0
 
 
-@njit(cache=True)
+@kernel
 def _slot_antideriv(kind, a, b, c, out, i):
     if kind == MODE_OSC:
         det = a * a - b  # = omega_0^2 > 0 for a nonsingular mode
@@ -433,7 +454,7 @@ def _slot_antideriv(kind, a, b, c, out, i):
         out[i + 1] = 0.0
 
 
-@njit(cache=True)
+@kernel
 def antideriv_coefs(c, md, Om, s0, value0, out):
     """Coefficients of the antiderivative of a basis combination c that equals value0 at tau = 0.
 
@@ -464,7 +485,7 @@ def antideriv_coefs(c, md, Om, s0, value0, out):
     out[B_ONE] = value0 - v
 
 
-@njit(cache=True)
+@kernel
 def setup_linear(p, contact, shell, s0, xr0, vr0, Xc0, Vc0, fe_level, coef, md):
     """Fill coef rows (x_r, v_r, X_c, V_c) and the mode descriptor md of a base linear mode (one
     modal slot, closed form); return (wmax, Om).
@@ -572,7 +593,7 @@ N_GM_KEYS = 30  # 3 contacts x 5 (slip +/-, patch stick, patch slide +/-) x 2 (t
 EIG_COND_MAX = 1e8  # eigenvector condition above which a mode is integrated on the adaptive path
 
 
-@njit(cache=True)
+@kernel
 def friction_row(p, tilt_on):
     """Return (L0, L1) of the constant-level friction force L0 + L1 x_r [N] of a slip (Coulomb, or a
     speed law held below V_min), with the tilt factor 1 + kappa x_r / G_1 (``tilt_friction``) active
@@ -584,7 +605,7 @@ def friction_row(p, tilt_on):
     return 0.0, 0.0
 
 
-@njit(cache=True)
+@kernel
 def mode_system(p, contact, gm, sg, tilt_on, fe_level, A, b0, bc):
     """Fill the linear system u' = A u + b0 + bc cos(Om s) of a general linear mode.
 
@@ -766,7 +787,7 @@ def mode_decompose(A, core, quad, lam, V, Vi, mdt, fn_eig):
     return nc, nq, ok, scale, slow
 
 
-@njit(cache=True)
+@kernel
 def _add_modal(coef, core, nc, V, alpha, lam, mdt, fn_eig):
     """Add the modal part ``V diag(e^{lambda tau}) alpha`` to the core rows of coef, written on the
     real slot functions (a complex pair: 2 Re and -2 Im omega on e^{sigma tau} cos, sin/omega)."""
@@ -859,7 +880,7 @@ def setup_general(A, b0, bc, Om, s0, u0, core, nc, quad, nq, lam, V, Vi, mdt, fn
         antideriv_coefs(work, md, Om, s0, u0[i], coef[i])
 
 
-@njit(cache=True)
+@kernel
 def general_events(p, gm, sg, tilt_on, coef, md, Om, evc, evcode, evtol, ne, tol_v, tol_F, work):
     """Append the shell/patch event functions of a general linear mode to evc (inside-positive,
     exact basis combinations); return the new count.
@@ -912,7 +933,7 @@ def general_events(p, gm, sg, tilt_on, coef, md, Om, evc, evcode, evtol, ne, tol
     return ne
 
 
-@njit(cache=True)
+@kernel
 def gl_graded_count(tau1, h, h_slow):
     """Number of quadrature pieces over [0, tau1] starting at h and doubling up to h_slow."""
     n = 0
@@ -925,7 +946,7 @@ def gl_graded_count(tau1, h, h_slow):
     return max(n, 1)
 
 
-@njit(cache=True)
+@kernel
 def gl_friction(p, coef, md, Om, s0, tau1, h, h_slow, gm, sg, tilt_on, dd, B, acc):
     """Add the substrate's dissipation over [0, tau1] of a general linear mode (Gauss-Legendre):
     friction ``(L0 + L1 x_r) |V_p|``, drag ``c_v V_c^2`` and the patch damper ``c_s (V_c - V_p)^2``
@@ -973,7 +994,7 @@ def gl_friction(p, coef, md, Om, s0, tau1, h, h_slow, gm, sg, tilt_on, dd, B, ac
             acc[E_FRIC] += wq * dis
 
 
-@njit(cache=True)
+@kernel
 def refine_root(c, dc, a, b, s0, md, Om, B):
     """Return the first tau in (a, b] just past the root of g = c.B, given g(a) >= 0 > g(b).
 
@@ -1022,7 +1043,7 @@ def refine_root(c, dc, a, b, s0, md, Om, B):
 
 
 
-@njit(cache=True)
+@kernel
 def refine_root_base(c, dc, a, b, s0, md, Om, B):
     """:func:`refine_root` on the seven-function basis of a base mode (the hot path).
 
@@ -1072,7 +1093,7 @@ def refine_root_base(c, dc, a, b, s0, md, Om, B):
     return b
 
 
-@njit(cache=True)
+@kernel
 def gl_energy(p, coef, contact, shell, s0, tau1, h, h_slow, md, Om, fe_level, B, acc):
     """Add drive work and viscous dissipation over [0, tau1] of a linear segment (Gauss-Legendre)."""
     if tau1 <= 0.0:
@@ -1118,7 +1139,7 @@ def gl_energy(p, coef, contact, shell, s0, tau1, h, h_slow, md, Om, fe_level, B,
 NY = 10  # x_r, v_r, V_c, X_c, W_drive, D_damp, D_contact, D_friction, d, W_plugin
 
 
-@njit(cache=True)
+@kernel
 def rk_rhs(p, contact, sgn, s, fe_level, y, dy):
     """Right-hand side in (x_r, v_r, V_c, X_c, W_drive, D_damp, D_contact, D_friction, d).
 
@@ -1151,7 +1172,7 @@ def rk_rhs(p, contact, sgn, s, fe_level, y, dy):
     dy[7] = L * Vs + p[I_CV] * y[2] * y[2]
 
 
-@njit(cache=True)
+@kernel
 def rk_rhs_patch(p, sgn, Fi, fe, y, dy):
     """Shell on a compliant wall (substrate_compliance, physics.md section 3): spring k_s and damper
     c_s between the shell and a massless contact patch carrying the set-valued friction.
@@ -1398,29 +1419,51 @@ DOP_NK = 16  # stages kept per step (rows of the stage array)
 RK_ORDER_EXP = 1.0 / 8.0  # step-size exponent: 1 / (error-estimator order 7 + 1)
 
 
-@njit(cache=True)
-def dop853_step(p, contact, sg, s, h, fe_level, y, k1, K, yt, y1, k7, plug, held, t0, pq, pfail):
-    """One DOP853 step of size h [s] from y at time s within the period (derivative k1 = f(s, y)).
-
-    Fills the stages K[0..12] (K[12] = f(s + h, y1), also copied to k7 for the next step, FSAL)
-    and the 8th-order solution y1. plug: a user plugin force acts (:func:`seg_rhs` with held, t0,
-    pq, pfail; else :func:`rk_rhs`)."""
-    for q in range(NY):
-        K[0, q] = k1[q]
-    for i in range(1, 12):
-        for q in range(NY):
+@kernel
+def dop853_stages(p, contact, sg, s, h, fe_level, y, K, yt, i0, i1, plug, held, t0, pq, pfail, full):
+    """Stages i0 .. i1-1 of a DOP853 step of size h [s] from y at time s within the period:
+    K[i] = f(s + c_i h, y + h sum_m a_im K[m]) (:func:`seg_rhs` with held, t0, pq, pfail when a user
+    plugin force acts, else :func:`rk_rhs`). The right-hand side reads only the mechanical state
+    (x_r, v_r, V_c, X_c) and, on a compliant wall, the patch extension d, never the energy
+    integrals; so the stage states of the components after the fourth are formed only with
+    ``full`` (a compliant wall), and the stages themselves, the step and its energy integrals are
+    the same to the bit either way (40 % of the stage arithmetic without them). The loops have
+    constant bounds so that LLVM unrolls them."""
+    for i in range(i0, i1):
+        for q in range(4):
             yt[q] = 0.0
         for m in range(i):
             a = DOP_A[i, m]
             if a != 0.0:
-                for q in range(NY):
+                for q in range(4):
                     yt[q] += a * K[m, q]
-        for q in range(NY):
+        for q in range(4):
             yt[q] = y[q] + h * yt[q]
+        if full:
+            for q in range(4, NY):
+                yt[q] = 0.0
+            for m in range(i):
+                a = DOP_A[i, m]
+                if a != 0.0:
+                    for q in range(4, NY):
+                        yt[q] += a * K[m, q]
+            for q in range(4, NY):
+                yt[q] = y[q] + h * yt[q]
         if plug:
             seg_rhs(p, contact, sg, held, s + DOP_C[i] * h, t0, fe_level, yt, K[i], pq, pfail)
         else:
             rk_rhs(p, contact, sg, s + DOP_C[i] * h, fe_level, yt, K[i])
+
+
+@kernel
+def dop853_step(p, contact, sg, s, h, fe_level, y, k1, K, yt, y1, k7, plug, held, t0, pq, pfail, full):
+    """One DOP853 step of size h [s] from y at time s within the period (derivative k1 = f(s, y)).
+
+    Fills the stages K[0..12] (K[12] = f(s + h, y1), also copied to k7 for the next step, FSAL)
+    and the 8th-order solution y1. plug, held, t0, pq, pfail, full as in :func:`dop853_stages`."""
+    for q in range(NY):
+        K[0, q] = k1[q]
+    dop853_stages(p, contact, sg, s, h, fe_level, y, K, yt, 1, 12, plug, held, t0, pq, pfail, full)
     for q in range(NY):
         acc = 0.0
         for m in range(12):
@@ -1434,7 +1477,7 @@ def dop853_step(p, contact, sg, s, h, fe_level, y, k1, K, yt, y1, k7, plug, held
         k7[q] = K[12, q]
 
 
-@njit(cache=True)
+@kernel
 def dop853_error(K, h, y, y1, rtol, atol_x, atol_v):
     """Scaled error norm of a DOP853 step (Hairer's combined 5th/3rd-order estimate) over the
     mechanical state (x_r, v_r, V_c, X_c): <= 1 accepts the step."""
@@ -1455,27 +1498,12 @@ def dop853_error(K, h, y, y1, rtol, atol_x, atol_v):
     return abs(h) * e5 / math.sqrt((e5 + 0.01 * e3) * 4.0)
 
 
-@njit(cache=True)
-def dop853_dense(p, contact, sg, s, h, fe_level, y, y1, K, yt, rc, plug, held, t0, pq, pfail):
+@kernel
+def dop853_dense(p, contact, sg, s, h, fe_level, y, y1, K, yt, rc, plug, held, t0, pq, pfail, full):
     """Continuous extension of an accepted DOP853 step: three more stages, then rc[0] = y and
     rc[1..7] the coefficients evaluated by :func:`dense_eval` (7th order in theta); plug, held, t0,
-    pq, pfail as in :func:`dop853_step`. The stage loop is a deliberate copy of dop853_step's: one
-    shared stage function (not inlined by numba) made the speed-law path 33 % slower (405 -> 540 us per
-    eq 22 period, measured back to back)."""
-    for i in range(13, 16):
-        for q in range(NY):
-            yt[q] = 0.0
-        for m in range(i):
-            a = DOP_A[i, m]
-            if a != 0.0:
-                for q in range(NY):
-                    yt[q] += a * K[m, q]
-        for q in range(NY):
-            yt[q] = y[q] + h * yt[q]
-        if plug:
-            seg_rhs(p, contact, sg, held, s + DOP_C[i] * h, t0, fe_level, yt, K[i], pq, pfail)
-        else:
-            rk_rhs(p, contact, sg, s + DOP_C[i] * h, fe_level, yt, K[i])
+    pq, pfail, full as in :func:`dop853_stages`."""
+    dop853_stages(p, contact, sg, s, h, fe_level, y, K, yt, 13, 16, plug, held, t0, pq, pfail, full)
     for q in range(NY):
         dy = y1[q] - y[q]
         rc[0, q] = y[q]
@@ -1489,7 +1517,7 @@ def dop853_dense(p, contact, sg, s, h, fe_level, y, y1, K, yt, rc, plug, held, t
             rc[4 + r, q] = h * acc
 
 
-@njit(cache=True)
+@kernel
 def rk_step_factor(err, rejected, err_old, h_ratio):
     """Step-size factor after an accepted step of scaled error ``err`` (safety 0.9, within [0.2, 5];
     no growth right after a rejection). With the previous accepted step's error ``err_old`` > 0 and
@@ -1509,13 +1537,13 @@ def rk_step_factor(err, rejected, err_old, h_ratio):
     return fac
 
 
-@njit(cache=True)
+@kernel
 def patch_force(p, d, Vc):
     """Force [N] of the presliding spring-damper on the stuck patch, k_s d + c_s V_c."""
     return p[I_KS] * d + p[I_CS] * Vc
 
 
-@njit(cache=True)
+@kernel
 def decide_patch(p, contact, xr, vr, Vc, d, fe, Fc):
     """Return the patch state (PATCH_STICK, FAST_POS, FAST_NEG; -1 ill-posed) by the set-valued
     law applied to the patch force (substrate_compliance), as :func:`decide_shell` for the shell
@@ -1543,7 +1571,7 @@ def decide_patch(p, contact, xr, vr, Vc, d, fe, Fc):
     return FAST_POS if sgn > 0 else FAST_NEG
 
 
-@njit(cache=True)
+@kernel
 def dense_eval(rc, th, out):
     """Evaluate the DOP853 continuous extension (:func:`dop853_dense`) at theta in [0, 1] of the step."""
     t1 = 1.0 - th
@@ -1552,7 +1580,7 @@ def dense_eval(rc, th, out):
             rc[4, i] + th * (rc[5, i] + t1 * (rc[6, i] + th * rc[7, i]))))))
 
 
-@njit(cache=True)
+@kernel
 def rk_event_value(p, contact, sgn, vlo, vhi, j, y):
     """Inside-positive event functions of an adaptive segment (j: 0 contact a, 1 contact b, 2 V_min or
     slip end; with substrate compliance 2/3 the patch's breakaway + / -, or 2 the patch's stop)."""
@@ -1625,7 +1653,7 @@ def _data_ptr(typingctx, arr):
     return sig, codegen
 
 
-@njit(cache=True)
+@kernel
 def plugin_force(pq, pfail, t, xr, vr, Xc, Vc):
     """Return (F_m, F_c) [N], the user plugin force on the magnet and the shell at time t [s] since the
     run's start and state (x_r, v_r, X_c, V_c) [m, m/s]; pq: [address, parameters...] (a copy of the row's
@@ -1641,7 +1669,7 @@ def plugin_force(pq, pfail, t, xr, vr, Xc, Vc):
     return Fm, Fc
 
 
-@njit(cache=True)
+@kernel
 def plugin_stick_terms(p, pq, pfail, t, contact, xr, vr, Xc, fe):
     """Return (F_m, F_c, dF_c/dt) [N, N, N/s] of the plugin force on a shell at rest (V_c = 0) for the stick
     test of :func:`decide_shell`; the rate by a central difference over 1e-7 of a drive period along the
@@ -1655,7 +1683,7 @@ def plugin_stick_terms(p, pq, pfail, t, contact, xr, vr, Xc, fe):
     return Fm, Fc, (Fp - Fn) / (2.0 * dt)
 
 
-@njit(cache=True)
+@kernel
 def held_rhs(p, contact, s, fe_level, y, dy, Fm):
     """Right-hand side (as :func:`rk_rhs`) of a shell held on a rigid wall with a plugin force: V_c = 0
     while |F_i + F_c| stays inside the friction cone (the breakaway is an event of
@@ -1676,7 +1704,7 @@ def held_rhs(p, contact, s, fe_level, y, dy, Fm):
     dy[9] = Fm * y[1]
 
 
-@njit(cache=True)
+@kernel
 def seg_rhs(p, contact, sgn, held, s, t0, fe_level, y, dy, pq, pfail):
     """Right-hand side of the adaptive segment with a user plugin force, at time s within the period
     starting at t0 [s]: :func:`rk_rhs` plus F_m on the magnet and F_c on the shell, their power
@@ -1692,7 +1720,7 @@ def seg_rhs(p, contact, sgn, held, s, t0, fe_level, y, dy, pq, pfail):
     dy[9] = Fm * (y[2] + y[1]) + Fc * y[2]
 
 
-@njit(cache=True)
+@kernel
 def seg_event_value(p, contact, sgn, held, vlo, vhi, j, y, t, pq, pfail):
     """Inside-positive event functions of an adaptive segment at time t [s] since the run's start:
     :func:`rk_event_value`, or for a shell held with a plugin force its stick test (eq 21 with the plugin's
@@ -1712,7 +1740,7 @@ def seg_event_value(p, contact, sgn, held, vlo, vhi, j, y, t, pq, pfail):
 # the run
 
 
-@njit(cache=True)
+@kernel
 def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, tau_end, h, h_slow,
                  recording, maxF, t_maxF, t_off, B, Bs, ga, dga, negc, negdc):
     """Find the first event of a general linear mode within (0, tau_end] and the extrema of F_i
@@ -1837,7 +1865,7 @@ def _grow(ev, n):
     return new
 
 
-@njit(cache=True)
+@kernel
 def settled_orbit(hist, k, xr, vr, Vc, dsub, contact, shell, tol_x, tol_v):
     """Store the state at the start of period k (phase 0) in the ring buffer ``hist`` and return the
     length q (1..SETTLE_ORBIT_MAX periods) of the periodic orbit it has settled on: the state of
@@ -1862,7 +1890,7 @@ def settled_orbit(hist, k, xr, vr, Vc, dsub, contact, shell, tol_x, tol_v):
     return 0
 
 
-@njit(cache=True)
+@kernel
 def open_period(row, xr, vr, Vc):
     """Record the state at the start of a recorded excitation period in its row of the period table:
     x_r [m], v_r [m/s], the magnet's and the shell's velocities [m/s]."""
@@ -1872,7 +1900,7 @@ def open_period(row, xr, vr, Vc):
     row[P_VC0] = Vc
 
 
-@njit(cache=True)
+@kernel
 def close_period(row, Xc_start, Xc, n_front, n_back, maxF, t_maxF, stick_fraction, n_stick):
     """Record a finished excitation period in its row of the period table: the shell's displacement
     over the period [m] and its start [m], the impacts on each constraint, the peak |F_i| [N] and its
@@ -1887,7 +1915,7 @@ def close_period(row, Xc_start, Xc, n_front, n_back, maxF, t_maxF, stick_fractio
     row[P_NSTICK] = n_stick
 
 
-@njit(cache=True)
+@kernel
 def shell_transition(p, ev, shell, contact, xr, vr, Vc, dsub, fe_now, pFm, pFc, pdFc, abort):
     """The shell's state after event ``ev`` (physics.md section 3: the set-valued friction law decides
     stick or slip from the net force, seed 000 eq 21): the new contact state, the event kinds to record,
@@ -1965,7 +1993,7 @@ def shell_transition(p, ev, shell, contact, xr, vr, Vc, dsub, fe_now, pFm, pFc, 
     return new_shell, contact, kind, kind2, Vc, dsub, e_fric
 
 
-@njit(cache=True)
+@kernel
 def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr, Xc, Vc, dsub,
                      rtol, max_steps, recording, do_energy, maxF, t_maxF, sample_times, n_transient, samples,
                      j_sample, rec_t0, seg_stick, plug, pq, pfail, energy, y, y1, yt, k1, k7, rc, KD, yd):
@@ -2015,6 +2043,8 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
         elif p[I_CS] > 0.0:
             wmax = max(wmax, p[I_KS] / p[I_CS])
     hmax = TWO_PI / wmax / 2.0
+    # stage states beyond the mechanical state only where the right-hand side reads d (dop853_stages)
+    full = compliant
     y[0] = xr
     y[1] = vr
     y[2] = Vc
@@ -2044,7 +2074,7 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
             break
         hh = min(hh, hmax, tau_end - tau)
         sa = s + tau
-        dop853_step(p, contact, sg, sa, hh, fe_level, y, k1, KD, yt, y1, k7, plug, held, t0, pq, pfail)
+        dop853_step(p, contact, sg, sa, hh, fe_level, y, k1, KD, yt, y1, k7, plug, held, t0, pq, pfail, full)
         if pfail[0] != 0.0:
             status = STATUS_PLUGIN
             status_t = t0 + sa
@@ -2074,7 +2104,7 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
                 dsb = k7[0] if ((contact == 0 and j == 1) or contact == 1) else -k7[0]
                 if dsa < 0.0 and dsb > 0.0:
                     if not rc_ok:
-                        dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail)
+                        dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail, full)
                         rc_ok = True
                     a_ = 0.0
                     b_ = 1.0
@@ -2094,7 +2124,7 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
                         hi = 0.5 * (a_ + b_)
             if hi > 0.0:
                 if not rc_ok:
-                    dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail)
+                    dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail, full)
                     rc_ok = True
                 a_ = lo
                 b_ = hi
@@ -2124,7 +2154,7 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
             dFb = K * k7[0] + Cd * k7[1]
             if dFa * dFb < 0.0:
                 if not rc_ok:
-                    dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail)
+                    dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail, full)
                     rc_ok = True
                 a_ = 0.0
                 b_ = th_stop
@@ -2160,7 +2190,7 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
                 if th < 0.0:
                     th = 0.0
                 if not rc_ok:
-                    dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail)
+                    dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail, full)
                     rc_ok = True
                 dense_eval(rc, th, yd)
                 row = samples[j_sample]
@@ -2571,8 +2601,8 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                 # scan
                 basis_base(0.0, s, md, Om, B)
                 for e in range(ne):
-                    ga[e] = dot_base(evc[e], B)
-                    dga[e] = dot_base(devc[e], B)
+                    ga[e] = dot_base_row(evc, e, B)
+                    dga[e] = dot_base_row(devc, e, B)
                 Fa = dot_base(cF, B)
                 dFa = dot_base(dcF, B)
                 if recording and abs(Fa) > maxF:
@@ -2585,8 +2615,8 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                     best = tb + 1.0
                     best_e = -1
                     for e in range(ne):
-                        gb = dot_base(evc[e], B)
-                        dgb = dot_base(devc[e], B)
+                        gb = dot_base_row(evc, e, B)
+                        dgb = dot_base_row(devc, e, B)
                         r = -1.0
                         if gb < 0.0:
                             if ga[e] > evtol[e] or (ta > 0.0 and ga[e] >= 0.0):
@@ -2600,7 +2630,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                                 for kk in range(48):
                                     tk = ta + (tb - ta) * 2.0 ** (kk - 47)
                                     basis_base(tk, s, md, Om, Bs)
-                                    if dot_base(evc[e], Bs) > evtol[e]:
+                                    if dot_base_row(evc, e, Bs) > evtol[e]:
                                         r = refine_root_base(evc[e], devc[e], tk, tb, s, md, Om, Bs)
                                         break
                         elif dgb > 0.0 and (dga[e] < 0.0 or (ta == 0.0 and abs(dga[e]) <= 1e-9 * dgb)):
@@ -2616,14 +2646,14 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                                 for kk in range(48):
                                     tk = ta + (tb - ta) * 2.0 ** (kk - 47)
                                     basis_base(tk, s, md, Om, Bs)
-                                    if dot_base(devc[e], Bs) < 0.0:
+                                    if dot_base_row(devc, e, Bs) < 0.0:
                                         t0m = tk
                                         break
                             m = tb
                             if t0m >= 0.0:
                                 m = refine_root_base(negc, negdc, t0m, tb, s, md, Om, Bs)
                             basis_base(m, s, md, Om, Bs)
-                            gm = dot_base(evc[e], Bs)
+                            gm = dot_base_row(evc, e, Bs)
                             if gm < -evtol[e]:
                                 r = refine_root_base(evc[e], devc[e], ta, m, s, md, Om, Bs)
                         if r >= 0.0 and r < best:
