@@ -56,10 +56,10 @@ Kernels (each compiled, one job)
   effects), runs it to its first event or the segment's end, applies the transition and
   keeps the period's bookkeeping.
 * exact segments: :func:`setup_linear` / :func:`setup_general` (the closed forms), the
-  event scan of a general mode :func:`locate_event` with :func:`refine_root`. The base modes'
-  scan stays inline in the driver: it runs once per event, at a few microseconds, and as its own
-  kernel it cost 23 % per period on the bench's hot path (session 5); even inlined by numba
-  (``inline="always"``) it cost 8-12 % (measured back to back, issue 9 item 5).
+  event scan of every linear mode :func:`locate_event` with :func:`refine_root` (on the
+  seven-function basis for a base mode). Kernels are compiled without reference counting
+  (``kernel``), so these calls cost nothing measurable; with it, the scan as its own kernel had
+  cost 23 % per period on the bench's hot path and was written inline in the driver.
 * :func:`adaptive_segment`: the nonlinear mode (DOP853 :func:`dop853_step`,
   :func:`dop853_error`, dense output :func:`dop853_dense`; events on the dense output).
 * :func:`shell_transition`: the set-valued friction law at an event (stick or slip from the
@@ -389,12 +389,20 @@ def dot_base(c, B):
 
 
 @kernel
-def dot_base_row(c, e, B):
-    """:func:`dot_base` of row e of the coefficient array c. The driver (which keeps numba's reference
-    counting, see ``kernel``) calls this in its scan instead of dot_base(c[e], B): the row view
-    c[e] costs a reference-count increment and decrement per call."""
-    return (c[e, 0] * B[0] + c[e, 1] * B[1] + c[e, 2] * B[2] + c[e, 3] * B[3] + c[e, 4] * B[4]
-            + c[e, 5] * B[5] + c[e, 6] * B[6])
+def mode_basis(base, tau, s0, md, Om, B):
+    """:func:`basis_base` (a base mode: seven functions) or :func:`basis` (a general mode)."""
+    if base:
+        basis_base(tau, s0, md, Om, B)
+    else:
+        basis(tau, s0, md, Om, B)
+
+
+@kernel
+def mode_dot(base, c, B):
+    """:func:`dot_base` (a base mode) or :func:`dot9` (a general mode)."""
+    if base:
+        return dot_base(c, B)
+    return dot9(c, B)
 
 
 @kernel
@@ -1094,6 +1102,14 @@ def refine_root_base(c, dc, a, b, s0, md, Om, B):
 
 
 @kernel
+def mode_root(base, c, dc, a, b, s0, md, Om, B):
+    """:func:`refine_root_base` (a base mode) or :func:`refine_root` (a general mode)."""
+    if base:
+        return refine_root_base(c, dc, a, b, s0, md, Om, B)
+    return refine_root(c, dc, a, b, s0, md, Om, B)
+
+
+@kernel
 def gl_energy(p, coef, contact, shell, s0, tau1, h, h_slow, md, Om, fe_level, B, acc):
     """Add drive work and viscous dissipation over [0, tau1] of a linear segment (Gauss-Legendre)."""
     if tau1 <= 0.0:
@@ -1742,24 +1758,27 @@ def seg_event_value(p, contact, sgn, held, vlo, vhi, j, y, t, pq, pfail):
 
 @kernel
 def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, tau_end, h, h_slow,
-                 recording, maxF, t_maxF, t_off, B, Bs, ga, dga, negc, negdc):
-    """Find the first event of a general linear mode within (0, tau_end] and the extrema of F_i
-    before it; return (event code or EV_NONE, its time tau, max |F_i|, its global time).
+                 recording, maxF, t_maxF, t_off, B, Bs, ga, dga, negc, negdc, base):
+    """Find the first event of a linear mode within (0, tau_end] and the extrema of F_i before it;
+    return (event code or EV_NONE, its time tau, max |F_i|, its global time).
 
-    The same scan as the base modes' (written inline in :func:`run_core_at` on the seven-function
-    basis, the benchmark's hot path, where a call would cost 20 %): event functions bracketed on cells
-    growing from h to h_slow, grazing minima caught by the sign change of g', crossings refined on
-    the exact expressions by :func:`refine_root`; t_off is the period's start time.
+    Event functions are bracketed on cells growing from h to h_slow (h_slow = h: fixed cells), grazing
+    minima caught by the sign change of g', crossings refined on the exact expressions by
+    :func:`refine_root`; t_off is the period's start time. base: a base mode on the seven-function
+    basis (:func:`basis_base`, the benchmark's hot path), else a general mode (:func:`basis`).
+    This scan used to be written out inline in :func:`run_core_at` for the base modes, where a call
+    cost 20 %: that cost was numba's reference counting of the array arguments, which ``kernel``
+    drops (the bench's us per period moved by less than its run-to-run spread).
     """
     ev = EV_NONE
     tau_ev = tau_end
     # scan
-    basis(0.0, s, md, Om, B)
+    mode_basis(base, 0.0, s, md, Om, B)
     for e in range(ne):
-        ga[e] = dot9(evc[e], B)
-        dga[e] = dot9(devc[e], B)
-    Fa = dot9(cF, B)
-    dFa = dot9(dcF, B)
+        ga[e] = mode_dot(base, evc[e], B)
+        dga[e] = mode_dot(base, devc[e], B)
+    Fa = mode_dot(base, cF, B)
+    dFa = mode_dot(base, dcF, B)
     if recording and abs(Fa) > maxF:
         maxF = abs(Fa)
         t_maxF = t_off + s
@@ -1767,16 +1786,16 @@ def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, 
     hcell = h
     while True:
         tb = min(ta + hcell, tau_end)
-        basis(tb, s, md, Om, B)
+        mode_basis(base, tb, s, md, Om, B)
         best = tb + 1.0
         best_e = -1
         for e in range(ne):
-            gb = dot9(evc[e], B)
-            dgb = dot9(devc[e], B)
+            gb = mode_dot(base, evc[e], B)
+            dgb = mode_dot(base, devc[e], B)
             r = -1.0
             if gb < 0.0:
                 if ga[e] > evtol[e] or (ta > 0.0 and ga[e] >= 0.0):
-                    r = refine_root(evc[e], devc[e], ta, tb, s, md, Om, Bs)
+                    r = mode_root(base, evc[e], devc[e], ta, tb, s, md, Om, Bs)
                 else:
                     # a mode start on the event surface (|g| at rounding level, maybe g' ~ 0
                     # too, as at a Coulomb threshold): probe geometrically for the first point
@@ -1785,9 +1804,9 @@ def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, 
                     r = ta
                     for kk in range(48):
                         tk = ta + (tb - ta) * 2.0 ** (kk - 47)
-                        basis(tk, s, md, Om, Bs)
-                        if dot9(evc[e], Bs) > evtol[e]:
-                            r = refine_root(evc[e], devc[e], tk, tb, s, md, Om, Bs)
+                        mode_basis(base, tk, s, md, Om, Bs)
+                        if mode_dot(base, evc[e], Bs) > evtol[e]:
+                            r = mode_root(base, evc[e], devc[e], tk, tb, s, md, Om, Bs)
                             break
             elif dgb > 0.0 and (dga[e] < 0.0 or (ta == 0.0 and abs(dga[e]) <= 1e-9 * dgb)):
                 # an interior minimum of g (grazing). A mode that starts with g' ~ 0 (a slip
@@ -1801,17 +1820,17 @@ def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, 
                     t0m = -1.0
                     for kk in range(48):
                         tk = ta + (tb - ta) * 2.0 ** (kk - 47)
-                        basis(tk, s, md, Om, Bs)
-                        if dot9(devc[e], Bs) < 0.0:
+                        mode_basis(base, tk, s, md, Om, Bs)
+                        if mode_dot(base, devc[e], Bs) < 0.0:
                             t0m = tk
                             break
                 m = tb
                 if t0m >= 0.0:
-                    m = refine_root(negc, negdc, t0m, tb, s, md, Om, Bs)
-                basis(m, s, md, Om, Bs)
-                gm = dot9(evc[e], Bs)
+                    m = mode_root(base, negc, negdc, t0m, tb, s, md, Om, Bs)
+                mode_basis(base, m, s, md, Om, Bs)
+                gm = mode_dot(base, evc[e], Bs)
                 if gm < -evtol[e]:
-                    r = refine_root(evc[e], devc[e], ta, m, s, md, Om, Bs)
+                    r = mode_root(base, evc[e], devc[e], ta, m, s, md, Om, Bs)
             if r >= 0.0 and r < best:
                 best = r
                 best_e = e
@@ -1820,8 +1839,8 @@ def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, 
         t_stop = tb if best_e < 0 else best
         # extrema of F_i within [ta, t_stop]
         if recording:
-            Fb = dot9(cF, B)
-            dFb = dot9(dcF, B)
+            Fb = mode_dot(base, cF, B)
+            dFb = mode_dot(base, dcF, B)
             # an extremum of F_i inside the cell; refined only if it can beat maxF: with F'
             # monotone across a cell (1/NPER of the fastest period) |F(m)| <= |F_a| + |F'_a| h
             # and <= |F_b| + |F'_b| h
@@ -1829,15 +1848,15 @@ def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, 
             if ((dFa > 0.0 and dFb < 0.0) or (dFa < 0.0 and dFb > 0.0)) and \
                     min(abs(Fa) + abs(dFa) * hc, abs(Fb) + abs(dFb) * hc) > maxF:
                 if dFa > 0.0:
-                    m = refine_root(dcF, ddcF, ta, tb, s, md, Om, Bs)
+                    m = mode_root(base, dcF, ddcF, ta, tb, s, md, Om, Bs)
                 else:
                     for j in range(NB):
                         negc[j] = -dcF[j]
                         negdc[j] = -ddcF[j]
-                    m = refine_root(negc, negdc, ta, tb, s, md, Om, Bs)
+                    m = mode_root(base, negc, negdc, ta, tb, s, md, Om, Bs)
                 if m <= t_stop:
-                    basis(m, s, md, Om, Bs)
-                    Fm = abs(dot9(cF, Bs))
+                    mode_basis(base, m, s, md, Om, Bs)
+                    Fm = abs(mode_dot(base, cF, Bs))
                     if Fm > maxF:
                         maxF = Fm
                         t_maxF = t_off + s + m
@@ -2593,110 +2612,9 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                     deriv_base(devc[e], md, Om, ddevc[e])
                 deriv_base(cF, md, Om, dcF)
                 deriv_base(dcF, md, Om, ddcF)
-            if lin_gen:
-                ev, tau_ev, maxF, t_maxF = locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om,
-                                                        s, tau_end, h, h_slow, recording, maxF, t_maxF, period * T,
-                                                        B, Bs, ga, dga, negc, negdc)
-            else:
-                # scan
-                basis_base(0.0, s, md, Om, B)
-                for e in range(ne):
-                    ga[e] = dot_base_row(evc, e, B)
-                    dga[e] = dot_base_row(devc, e, B)
-                Fa = dot_base(cF, B)
-                dFa = dot_base(dcF, B)
-                if recording and abs(Fa) > maxF:
-                    maxF = abs(Fa)
-                    t_maxF = period * T + s
-                ta = 0.0
-                while True:
-                    tb = min(ta + h, tau_end)
-                    basis_base(tb, s, md, Om, B)
-                    best = tb + 1.0
-                    best_e = -1
-                    for e in range(ne):
-                        gb = dot_base_row(evc, e, B)
-                        dgb = dot_base_row(devc, e, B)
-                        r = -1.0
-                        if gb < 0.0:
-                            if ga[e] > evtol[e] or (ta > 0.0 and ga[e] >= 0.0):
-                                r = refine_root_base(evc[e], devc[e], ta, tb, s, md, Om, Bs)
-                            else:
-                                # a mode start on the event surface (|g| at rounding level, maybe g' ~ 0
-                                # too, as at a Coulomb threshold): probe geometrically for the first point
-                                # clearly inside, then bracket the crossing from there; none -> a genuine
-                                # immediate exit.
-                                r = ta
-                                for kk in range(48):
-                                    tk = ta + (tb - ta) * 2.0 ** (kk - 47)
-                                    basis_base(tk, s, md, Om, Bs)
-                                    if dot_base_row(evc, e, Bs) > evtol[e]:
-                                        r = refine_root_base(evc[e], devc[e], tk, tb, s, md, Om, Bs)
-                                        break
-                        elif dgb > 0.0 and (dga[e] < 0.0 or (ta == 0.0 and abs(dga[e]) <= 1e-9 * dgb)):
-                            # an interior minimum of g (grazing). A mode that starts with g' ~ 0 (a slip
-                            # from a friction threshold: V_c' = 0) has g' of either sign at rounding
-                            # level at ta: probe geometrically for the first point where g' < 0.
-                            for j in range(NB):
-                                negc[j] = -devc[e, j]
-                                negdc[j] = -ddevc[e, j]
-                            t0m = ta
-                            if dga[e] >= 0.0:
-                                t0m = -1.0
-                                for kk in range(48):
-                                    tk = ta + (tb - ta) * 2.0 ** (kk - 47)
-                                    basis_base(tk, s, md, Om, Bs)
-                                    if dot_base_row(devc, e, Bs) < 0.0:
-                                        t0m = tk
-                                        break
-                            m = tb
-                            if t0m >= 0.0:
-                                m = refine_root_base(negc, negdc, t0m, tb, s, md, Om, Bs)
-                            basis_base(m, s, md, Om, Bs)
-                            gm = dot_base_row(evc, e, Bs)
-                            if gm < -evtol[e]:
-                                r = refine_root_base(evc[e], devc[e], ta, m, s, md, Om, Bs)
-                        if r >= 0.0 and r < best:
-                            best = r
-                            best_e = e
-                        ga[e] = gb
-                        dga[e] = dgb
-                    t_stop = tb if best_e < 0 else best
-                    # extrema of F_i within [ta, t_stop]
-                    if recording:
-                        Fb = dot_base(cF, B)
-                        dFb = dot_base(dcF, B)
-                        # an extremum of F_i inside the cell; refined only if it can beat maxF: with F'
-                        # monotone across a cell (1/NPER of the fastest period) |F(m)| <= |F_a| + |F'_a| h
-                        # and <= |F_b| + |F'_b| h
-                        hc = tb - ta
-                        if ((dFa > 0.0 and dFb < 0.0) or (dFa < 0.0 and dFb > 0.0)) and \
-                                min(abs(Fa) + abs(dFa) * hc, abs(Fb) + abs(dFb) * hc) > maxF:
-                            if dFa > 0.0:
-                                m = refine_root_base(dcF, ddcF, ta, tb, s, md, Om, Bs)
-                            else:
-                                for j in range(NB):
-                                    negc[j] = -dcF[j]
-                                    negdc[j] = -ddcF[j]
-                                m = refine_root_base(negc, negdc, ta, tb, s, md, Om, Bs)
-                            if m <= t_stop:
-                                basis_base(m, s, md, Om, Bs)
-                                Fm = abs(dot_base(cF, Bs))
-                                if Fm > maxF:
-                                    maxF = Fm
-                                    t_maxF = period * T + s + m
-                        if best_e < 0 and abs(Fb) > maxF:
-                            maxF = abs(Fb)
-                            t_maxF = period * T + s + tb
-                        Fa = Fb
-                        dFa = dFb
-                    if best_e >= 0:
-                        ev = evcode[best_e]
-                        tau_ev = best
-                        break
-                    if tb >= tau_end:
-                        break
-                    ta = tb
+            ev, tau_ev, maxF, t_maxF = locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om,
+                                                    s, tau_end, h, h_slow, recording, maxF, t_maxF, period * T,
+                                                    B, Bs, ga, dga, negc, negdc, not lin_gen)
             # end state
             if lin_gen:
                 basis(tau_ev, s, md, Om, B)
