@@ -25,6 +25,7 @@ def test_fig19_bench_record_on_a_subset():
     for s in rec["solve_ivp_sample"].values():
         assert s["engine_s"] > 0 and s["solve_ivp_s"] > 0
         assert math.isclose(s["solve_ivp_over_engine"], s["solve_ivp_s"] / s["engine_s"])
+        assert s["solve_ivp_timed_out"] is False
     # the peaks are those of the same maps computed by magnify
     m, _ = load_model(cfg["model"])
     Pd = np.linspace(cfg["Pd_start_N"], cfg["Pd_stop_N"], 2)
@@ -32,6 +33,28 @@ def test_fig19_bench_record_on_a_subset():
     df = magnify_table(m, Pd, f, ["0.17", "eq23"], cfg["protocol"], nt, nr)
     for lab, pk in rec["max_Af_per_friction"].items():
         assert pk["max_Af"] == df[df["friction"] == lab]["Af"].max()
+
+
+def test_fig19_bench_bounds_a_crawling_solve_ivp_sample():
+    """A solve_ivp sample run past its wall-time budget is stopped and reported as a lower bound
+    (at the full grid's centre, P_f = 0.17 N, solve_ivp took over a minute for 20 periods and the
+    full bench did not finish)."""
+    budget = 1e-3
+    rec = run_fig19_bench(Pd_num=2, f_num=2, frictions=["2.5"], sample_periods=20, sample_budget_s=budget)
+    s = rec["solve_ivp_sample"]["2.5"]
+    assert s["solve_ivp_timed_out"] is True
+    assert s["solve_ivp_s"] == budget and math.isclose(s["solve_ivp_over_engine"], budget / s["engine_s"])
+
+
+def test_reference_run_stops_at_its_wall_time_budget():
+    from capsule_cli.dynamics.model import Drive, friction_preset
+    from capsule_cli.dynamics.reference import ReferenceTimeout, reference_run
+    m, _ = load_model("prototype_one_sided")
+    with pytest.raises(ReferenceTimeout) as ei:
+        reference_run(m, Drive(0.2, 20.0), friction_preset("coulomb", 0.17), 50, max_wall_s=1e-3)
+    assert ei.value.periods_done < 50 and ei.value.elapsed_s > 1e-3
+    r = reference_run(m, Drive(0.2, 20.0), friction_preset("coulomb", 0.17), 2, max_wall_s=60.0)
+    assert len(r.poincare) == 3  # a budget that is not reached changes nothing
 
 
 def test_bench_reports_us_per_period_and_per_event():

@@ -25,7 +25,7 @@ import numpy as np
 
 from . import engine as E
 from .model import STEADY_SETTLE_TOL, Drive, EngineOptions, friction_preset, load_model, pack_params
-from .reference import reference_run
+from .reference import ReferenceTimeout, reference_run
 from .run import simulate
 from .sweep import period_number
 
@@ -234,9 +234,15 @@ def run_bench(freqs=DEFAULT_FREQS, amplitude_N: float = 0.15, Pf_N: float = 0.00
 # seed 000 Fig 19 set (contract section 6: `capsule-cli bench --fig19 --json`)
 
 
+#: wall-time budget [s] of each solve_ivp sample run of ``bench --fig19``: past it the run stops and the
+#: ratio is reported as a lower bound (some stick-slip points make solve_ivp crawl for minutes)
+FIG19_SAMPLE_BUDGET_S = 10.0
+
+
 def run_fig19_bench(Pd_num: int | None = None, f_num: int | None = None, frictions=None,
                     sample_periods: int = 20, sample_method: str = "RK45", baseline_rtol: float = 1e-8,
-                    baseline_steps_per_period: float = 16.0, progress=None) -> dict:
+                    baseline_steps_per_period: float = 16.0, progress=None,
+                    sample_budget_s: float = FIG19_SAMPLE_BUDGET_S) -> dict:
     """Time the Fig 19 maps (configs/bench/fig19.yaml) friction by friction; return a JSON-ready dict.
 
     ``Pd_num`` x ``f_num`` (default: the config's 100 x 100) sets the grid actually run; a smaller
@@ -245,6 +251,8 @@ def run_fig19_bench(Pd_num: int | None = None, f_num: int | None = None, frictio
     Ratio to solve_ivp: per friction, one sample point (the grid centre) run ``sample_periods``
     periods from rest by the engine (best of 3) and by solve_ivp (``sample_method``, rtol
     ``baseline_rtol``, steps capped at 1/``baseline_steps_per_period`` of the fastest modal period).
+    A solve_ivp run that passes ``sample_budget_s`` of wall time is stopped: its record then says
+    ``solve_ivp_timed_out`` and its ratio is a lower bound (the budget over the engine's time).
     """
     from ..steps.dynamics import load_fig19, magnify_arrays, magnify_friction
 
@@ -277,13 +285,20 @@ def run_fig19_bench(Pd_num: int | None = None, f_num: int | None = None, frictio
         d = Drive(float(Pd[n_Pd // 2]), float(f[n_f // 2]))
         te = _engine_time(model, d, fr, sample_periods, repeat=3)
         tb = math.inf
+        timed_out = False
         for _ in range(2):
             t1 = time.perf_counter()
-            reference_run(model, d, fr, sample_periods, method=sample_method, rtol=baseline_rtol,
-                          atol=np.array([1e-11, 1e-11, 1e-8, 1e-8]), steps_per_period=baseline_steps_per_period)
+            try:
+                reference_run(model, d, fr, sample_periods, method=sample_method, rtol=baseline_rtol,
+                              atol=np.array([1e-11, 1e-11, 1e-8, 1e-8]), steps_per_period=baseline_steps_per_period,
+                              max_wall_s=sample_budget_s)
+            except ReferenceTimeout:
+                timed_out = True
+                tb = sample_budget_s
+                break
             tb = min(tb, time.perf_counter() - t1)
         sample[label] = {"Pd_N": d.amplitude_N, "f_Hz": d.frequency_Hz, "engine_s": te, "solve_ivp_s": tb,
-                         "solve_ivp_over_engine": tb / te}
+                         "solve_ivp_over_engine": tb / te, "solve_ivp_timed_out": timed_out}
     n_points = n_Pd * n_f * len(specs)
     full_points = int(cfg["Pd_num"]) * int(cfg["f_num"]) * len(cfg["frictions"])
     periods_total = n_points * (nt + nr)
@@ -310,8 +325,11 @@ def run_fig19_bench(Pd_num: int | None = None, f_num: int | None = None, frictio
         "solve_ivp_sample": sample,
         "solve_ivp_sample_method": f"{sample_method} rtol {baseline_rtol}, {sample_periods} periods from rest, "
                                    f"steps capped at 1/{baseline_steps_per_period:g} of the fastest modal period; "
-                                   "engine best of 3, solve_ivp best of 2",
+                                   "engine best of 3, solve_ivp best of 2; a solve_ivp run past "
+                                   f"{sample_budget_s:g} s is stopped (solve_ivp_timed_out: its solve_ivp_s is "
+                                   "that budget and its ratio a lower bound)",
         "solve_ivp_over_engine_median": float(np.median([v["solve_ivp_over_engine"] for v in sample.values()])),
+        "solve_ivp_over_engine_median_note": "over the frictions' samples; a timed-out sample enters with its lower bound",
         "rk_rtol": rk_rtol,
         "rk_rtol_note": "relative tolerance of the adaptive (speed-law) segment in the maps, configs/bench/fig19.yaml",
         "settle_tol": settle_tol,

@@ -11,12 +11,23 @@ benchmark and (2) at ordinary tolerance as the benchmark's baseline.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.integrate import solve_ivp
 
 from .model import CapsuleModel, Drive, Friction, effective_friction
+
+
+class ReferenceTimeout(RuntimeError):
+    """:func:`reference_run` passed its ``max_wall_s``: ``periods_done`` whole periods were integrated
+    in ``elapsed_s`` [s] of wall time."""
+
+    def __init__(self, periods_done: int, elapsed_s: float):
+        super().__init__(f"solve_ivp reference stopped after {elapsed_s:.3g} s, {periods_done} periods done")
+        self.periods_done = periods_done
+        self.elapsed_s = elapsed_s
 
 
 @dataclass
@@ -176,7 +187,7 @@ class _Sys:
 
 def reference_run(model: CapsuleModel, drive: Drive, friction: Friction, periods: int, state0=None,
                   method: str = "DOP853", rtol: float = 1e-12, atol=None, max_segments: int = 10_000_000,
-                  steps_per_period: float = 100.0):
+                  steps_per_period: float = 100.0, max_wall_s: float | None = None):
     """Integrate ``periods`` excitation periods from ``state0`` = [x_r, v_r, X_c, V_c] (rest by default).
 
     Returns :class:`ReferenceResult` with the event list (same kinds as the engine) and the
@@ -190,7 +201,13 @@ def reference_run(model: CapsuleModel, drive: Drive, friction: Friction, periods
     just crossed (event function ~0 of either sign), so its first step is short (1e-4 of the
     cap): otherwise a whole excursion and the next crossing can fit in one step whose two ends
     lie on the same side.
+
+    ``max_wall_s``: stop with :class:`ReferenceTimeout` once that much wall time [s] has passed (checked
+    between segments). Some stick-slip regimes make solve_ivp crawl through millions of short
+    segments (the Fig 19 grid centre at P_f = 0.17 N: over 60 s for 20 periods); a benchmark that
+    only times the reference bounds it this way.
     """
+    t_start = time.perf_counter()
     S = _Sys(model, drive, friction)
     mu = S.Mm * S.Mc / (S.Mm + S.Mc)
 
@@ -237,6 +254,8 @@ def reference_run(model: CapsuleModel, drive: Drive, friction: Friction, periods
                 nseg += 1
                 if nseg > max_segments:
                     raise RuntimeError("too many segments (Zeno?)")
+                if max_wall_s is not None and time.perf_counter() - t_start > max_wall_s:
+                    raise ReferenceTimeout(n, time.perf_counter() - t_start)
                 evs, kinds = [], []
 
                 def mk(fun, kind):
