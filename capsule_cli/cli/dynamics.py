@@ -73,7 +73,8 @@ FRIC_OPT = typer.Option("coulomb", "--friction", help=FRICTION_HELP)
 PF_OPT = typer.Option(None, "--Pf-N", help="Coulomb friction level P_f [N] (default: the parameter set's Pf_N)")
 SETTLE_OPT = typer.Option(None, "--settle-tol", help="end each point's transient early, by whole orbits, once its "
                           "state at phase 0 repeats after 1-8 periods within this fraction of the state scales [-] "
-                          "(0: run every transient period; default 1e-12, the steady-state runs' STEADY_SETTLE_TOL)")
+                          "(0: run every transient period; default 1e-12, the steady-state runs' STEADY_SETTLE_TOL; a speed "
+                          "law uses at least 0.01 x its rk_rtol, the adaptive path's accuracy)")
 
 
 def _settle_tol(value):

@@ -417,6 +417,8 @@ def pack_params(model: CapsuleModel, drive: Drive, friction: Friction) -> np.nda
 #: (200 + 30 periods from rest, rk_rtol 1e-9) against the full transient: A_f moves by at most 2e-10 (Coulomb
 #: and fixed panels) and 6e-9 (eq22, eq23), the average velocity by at most 8e-8 mm/s, and the time falls to
 #: 0.15-0.32 (Coulomb, fixed) and 0.63-0.66 (eq22, eq23) of the full transient's. simulate keeps 0 (every period).
+#: With a speed law the engine uses at least SETTLE_RTOL_FRACTION x rk_rtol (engine.py), and runs without samples,
+#: events or energy fill their recorded periods from the first settled orbit (session 10: docs/dynamics.md).
 STEADY_SETTLE_TOL = 1e-12
 
 
@@ -430,8 +432,10 @@ class EngineOptions:
     the adaptive path, a cross-check), settle_tol (0: run every transient period; > 0: end the
     transient early, by whole orbits, once the state at phase 0 repeats after 1 to 8 periods within
     settle_tol times the state scales, in the same contact and shell state: the steady state is then
-    reached, and the recorded periods are those of the full transient up to that tolerance; never
-    with a plugin force)."""
+    reached, and the recorded periods are those of the full transient up to that tolerance; a run
+    that records no samples, events or energy also fills its recorded periods from the first recorded
+    orbit; with a speed law the tolerance is at least SETTLE_RTOL_FRACTION x rk_rtol (engine.py), the
+    adaptive path's own accuracy; never with a plugin force)."""
 
     samples_per_fast_period: float = 8.0
     energy: bool = True
