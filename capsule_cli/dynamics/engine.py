@@ -55,19 +55,22 @@ Kernels (each compiled, one job)
 * :func:`run_core_at`: the driver. Per segment it picks the mode (contact x shell state x
   effects), runs it to its first event or the segment's end, applies the transition and
   keeps the period's bookkeeping.
-* exact segments: :func:`setup_linear` / :func:`setup_general` (the closed forms), the
-  event scan of every linear mode :func:`locate_event` with :func:`refine_root` (on the
-  seven-function basis for a base mode). Kernels are compiled without reference counting
-  (``kernel``), so these calls cost nothing measurable; with it, the scan as its own kernel had
-  cost 23 % per period on the bench's hot path and was written inline in the driver. The rest of
-  a linear segment (its event functions, end state, samples, energy: about 150 lines) stays in
-  the driver: as one kernel it takes some 45 arrays, and that call measured 8.3-8.7 against
-  5.9 us per bench period (outputs bit-identical; session 9).
+* exact segments, one kernel per job: :func:`mode_path` (which path a shell state takes: base
+  closed form, general linear mode, or adaptive), :func:`setup_linear` / :func:`setup_general`
+  (the closed forms), :func:`mode_events` (the mode's event functions on its basis) and
+  :func:`event_derivatives` (their time derivatives), the event scan :func:`locate_event` with
+  :func:`refine_root` (on the seven-function basis for a base mode), :func:`mode_state` (the end
+  state), :func:`mode_samples` (trajectory samples) and :func:`gl_energy` / :func:`gl_friction`
+  (the energy balance). Kernels are compiled without reference counting (``kernel``), so a call
+  costs little: split this way the bench's period took 1-4 % longer (6.11-6.34 against 6.30-6.46
+  us, alternated; session 10), where one kernel taking some 45 arrays had cost 8.3-8.7 against 5.9
+  (session 9) and numba's IR-level inlining (``inline='always'``) 7.2-7.8.
 * :func:`adaptive_segment`: the nonlinear mode (DOP853 :func:`dop853_step`,
   :func:`dop853_error`, dense output :func:`dop853_dense`; events on the dense output).
 * :func:`shell_transition`: the set-valued friction law at an event (stick or slip from the
   net force, :func:`decide_shell` / :func:`decide_patch`) and the jumps it implies.
-* :func:`open_period` / :func:`close_period`: the rows of the period table.
+* :func:`open_period` / :func:`close_period`: the rows of the period table; :func:`settled_orbit`
+  and :func:`fill_orbit`: the settled transient and the recorded periods filled from its orbit.
 
 Status codes returned by :func:`run_core`: see ``STATUS_*``.
 """
@@ -2044,6 +2047,195 @@ def shell_transition(p, ev, shell, contact, xr, vr, Vc, dsub, fe_now, pFm, pFc, 
 
 
 @kernel
+def mode_path(p, shell, plug, exact_general, eff_slip, xr, vr):
+    """Which path advances shell state ``shell`` at (x_r [m], v_r [m/s]): the base closed form (one modal
+    slot: a stuck shell, or a Coulomb slip without drag or tilt, ``eff_slip`` False), a general linear mode
+    (drag, tilt, substrate compliance: eigen-decomposition), or neither (the adaptive segment: a speed
+    law above V_min, a plugin force, or ``exact_general`` off). Returns (lin_base, lin_gen, general mode
+    GM_*, its slip direction (+-1, 0), tilt level active, the mode's slot among the general modes 0-4).
+
+    The tilt level is active where 1 + kappa x_r / G_1 > 0; on the zero itself (a mode starting at
+    EV_TILT) the direction of x_r decides (physics.md section 3, tilt_friction)."""
+    compliant = p[I_KS] > 0.0
+    lin_base = not plug and (shell == STICK or ((shell == SLIP_POS or shell == SLIP_NEG) and not eff_slip))
+    lin_gen = False
+    gmode = GM_SLIP
+    sgm = 0.0
+    if not lin_base and exact_general and not plug:
+        if shell == SLIP_POS or shell == SLIP_NEG:
+            gmode = GM_SLIP
+            sgm = 1.0 if shell == SLIP_POS else -1.0
+            lin_gen = True
+        elif compliant and shell == PATCH_STICK:
+            gmode = GM_PSTICK
+            lin_gen = True
+        elif compliant and p[I_LAW] < 0.5:
+            gmode = GM_PSLIDE
+            sgm = 1.0 if shell == FAST_POS else -1.0
+            lin_gen = True
+    tilt_on = True
+    mk = 0
+    if lin_gen:
+        if p[I_KAP] != 0.0:
+            fac0 = 1.0 + p[I_KAP] * xr / p[I_G1]
+            tilt_on = fac0 > 1e-13 or (fac0 > -1e-13 and p[I_KAP] * vr > 0.0)
+        if gmode == GM_SLIP:
+            mk = 0 if sgm > 0.0 else 1
+        elif gmode == GM_PSTICK:
+            mk = 2
+        else:
+            mk = 3 if sgm > 0.0 else 4
+    return lin_base, lin_gen, gmode, sgm, tilt_on, mk
+
+
+@kernel
+def mode_events(p, contact, shell, lin_gen, gmode, sgm, tilt_on, coef, md, Om, tol_x, tol_v, tol_F, evc, evcode,
+                evtol, cF, gwork):
+    """Write the event functions of a linear mode as coefficient rows on its basis (``coef``, ``md``,
+    ``Om``: :func:`setup_linear` or :func:`setup_general`) and return their number: the contact's
+    on/off crossings of each constraint (gaps G_1, G_2), then for a base mode the breakaway of a
+    stuck shell (|F_i| = P_b, scaled by the tilt) or the end of a slip and the V_fast crossing, and for
+    a general mode (drag, tilt, compliance) those of :func:`general_events`. evcode and evtol [m,
+    m/s or N] take each row's event code and root tolerance; cF the coefficients of F_i [N]
+    (seed 000 eqs 19-21, physics.md section 3)."""
+    K, Cd, F0 = contact_terms(p, contact)
+    G1 = p[I_G1]
+    G2 = p[I_G2]
+    back = p[I_BACK] > 0.5
+    ne = 0
+    if contact == 0:
+        for j in range(NB):
+            evc[ne, j] = -coef[0, j]
+        evc[ne, 4] += G1
+        evcode[ne] = EV_FRONT_ON
+        evtol[ne] = tol_x
+        ne += 1
+        if back:
+            for j in range(NB):
+                evc[ne, j] = coef[0, j]
+            evc[ne, 4] += G2
+            evcode[ne] = EV_BACK_ON
+            evtol[ne] = tol_x
+            ne += 1
+    elif contact == 1:
+        for j in range(NB):
+            evc[ne, j] = coef[0, j]
+        evc[ne, 4] -= G1
+        evcode[ne] = EV_FRONT_OFF
+        evtol[ne] = tol_x
+        ne += 1
+    else:
+        for j in range(NB):
+            evc[ne, j] = -coef[0, j]
+        evc[ne, 4] -= G2
+        evcode[ne] = EV_BACK_OFF
+        evtol[ne] = tol_x
+        ne += 1
+    for j in range(NB):
+        cF[j] = K * coef[0, j] + Cd * coef[1, j]
+    cF[4] += F0
+    if lin_gen:
+        ne = general_events(p, gmode, sgm, tilt_on, coef, md, Om, evc, evcode, evtol, ne, tol_v, tol_F,
+                            gwork)
+    elif shell == STICK:
+        if p[I_PB] < np.inf:
+            for j in range(NB):
+                evc[ne, j] = -cF[j]
+                evc[ne + 1, j] = cF[j]
+            if p[I_KAP] != 0.0:
+                # tilt: breakaway P_b (1 + kappa x_r / G_1), linear in the state
+                kq = p[I_PB] * p[I_KAP] / G1
+                for j in range(NB):
+                    evc[ne, j] += kq * coef[0, j]
+                    evc[ne + 1, j] += kq * coef[0, j]
+            evc[ne, 4] += p[I_PB]
+            evc[ne + 1, 4] += p[I_PB]
+            evcode[ne] = EV_BREAK_POS
+            evcode[ne + 1] = EV_BREAK_NEG
+            evtol[ne] = tol_F
+            evtol[ne + 1] = tol_F
+            ne += 2
+    else:
+        sg = 1.0 if shell == SLIP_POS else -1.0
+        for j in range(NB):
+            evc[ne, j] = sg * coef[3, j]
+        evcode[ne] = EV_SLIP_END
+        evtol[ne] = tol_v
+        ne += 1
+        if p[I_VFAST] < np.inf:
+            for j in range(NB):
+                evc[ne, j] = -sg * coef[3, j]
+            evc[ne, 4] += p[I_VFAST]
+            evcode[ne] = EV_FAST_ON
+            evtol[ne] = tol_v
+            ne += 1
+    return ne
+
+
+@kernel
+def event_derivatives(ne, lin_gen, md, Om, evc, devc, ddevc, cF, dcF, ddcF):
+    """The first and second time derivatives of the ne event rows and of F_i, as coefficient rows on
+    the mode's basis (the event scan's bounds, :func:`locate_event`)."""
+    if lin_gen:
+        for e in range(ne):
+            deriv_coefs(evc[e], md, Om, devc[e])
+            deriv_coefs(devc[e], md, Om, ddevc[e])
+        deriv_coefs(cF, md, Om, dcF)
+        deriv_coefs(dcF, md, Om, ddcF)
+    else:
+        for e in range(ne):
+            deriv_base(evc[e], md, Om, devc[e])
+            deriv_base(devc[e], md, Om, ddevc[e])
+        deriv_base(cF, md, Om, dcF)
+        deriv_base(dcF, md, Om, ddcF)
+
+
+@kernel
+def mode_state(tau, s, md, Om, coef, lin_gen, dsub, B):
+    """Return the state (x_r [m], v_r [m/s], X_c [m], V_c [m/s], d [m]) of a linear mode at time tau [s]
+    after its start at phase s [s], from its closed form (a base mode keeps the substrate's extension
+    dsub [m]); B is work space for the basis."""
+    if lin_gen:
+        basis(tau, s, md, Om, B)
+        return dot9(coef[0], B), dot9(coef[1], B), dot9(coef[2], B), dot9(coef[3], B), dot9(coef[R_D], B)
+    basis_base(tau, s, md, Om, B)
+    return dot_base(coef[0], B), dot_base(coef[1], B), dot_base(coef[2], B), dot_base(coef[3], B), dsub
+
+
+@kernel
+def mode_samples(coef, md, Om, s, tau_ev, sample_times, j_sample, t_shift, rec_t0, contact, seg_stick, K, Cd, F0,
+                 samples, Bs):
+    """Write the trajectory samples due within a linear mode, at phases [s, s + tau_ev) [s], from its closed
+    form: sample j is at sample_times[j] - t_shift [s] into this period (rec_t0 [s]: the record's start,
+    added to the time column). Returns the index of the next sample due."""
+    n_samples = sample_times.shape[0]
+    while j_sample < n_samples:
+        ts = sample_times[j_sample] - t_shift
+        if ts >= s + tau_ev:
+            break
+        tt = ts - s
+        if tt < 0.0:
+            tt = 0.0
+        basis(tt, s, md, Om, Bs)
+        sx = dot9(coef[0], Bs)
+        sv = dot9(coef[1], Bs)
+        sXc = dot9(coef[2], Bs)
+        sVc = dot9(coef[3], Bs)
+        row = samples[j_sample]
+        row[S_T] = rec_t0 + sample_times[j_sample]
+        row[S_XM] = sXc + sx
+        row[S_XC] = sXc
+        row[S_VM] = sVc + sv
+        row[S_VC] = sVc
+        row[S_XR] = sx
+        row[S_CONTACT] = contact
+        row[S_STICK] = 1.0 if seg_stick else 0.0
+        row[S_FI] = K * sx + Cd * sv + F0
+        j_sample += 1
+    return j_sample
+
+
+@kernel
 def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr, Xc, Vc, dsub,
                      rtol, max_steps, recording, do_energy, maxF, t_maxF, sample_times, n_transient, samples,
                      j_sample, rec_t0, seg_stick, plug, pq, pfail, energy, y, y1, yt, k1, k7, rc, KD, yd):
@@ -2346,11 +2538,6 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     T = 1.0 / f
     harmonic = p[I_WAVE] < 0.5
     DT = p[I_DUTY] * T
-    G1 = p[I_G1]
-    G2 = p[I_G2]
-    Mm = p[I_MM]
-    Mc = p[I_MC]
-    back = p[I_BACK] > 0.5
     tol_x = 1e-13 * p[I_XS]
     tol_v = 1e-13 * p[I_VS]
     tol_F = 1e-13 * p[I_FS]
@@ -2508,35 +2695,8 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
         # tilt, substrate compliance; eigen-decomposition), or the adaptive segment (speed law above
         # V_min, literal law, or a general mode whose eigenvectors are nearly defective)
         # (a user plugin force makes every mode nonlinear: all go through the adaptive segment)
-        lin_base = not plug and (shell == STICK or ((shell == SLIP_POS or shell == SLIP_NEG) and not eff_slip))
-        lin_gen = False
-        gmode = GM_SLIP
-        sgm = 0.0
-        if not lin_base and exact_general and not plug:
-            if shell == SLIP_POS or shell == SLIP_NEG:
-                gmode = GM_SLIP
-                sgm = 1.0 if shell == SLIP_POS else -1.0
-                lin_gen = True
-            elif compliant and shell == PATCH_STICK:
-                gmode = GM_PSTICK
-                lin_gen = True
-            elif compliant and p[I_LAW] < 0.5:
-                gmode = GM_PSLIDE
-                sgm = 1.0 if shell == FAST_POS else -1.0
-                lin_gen = True
+        lin_base, lin_gen, gmode, sgm, tilt_on, mk = mode_path(p, shell, plug, exact_general, eff_slip, xr, vr)
         if lin_gen:
-            # the tilt level is active where 1 + kappa x_r / G_1 > 0; on the zero itself (a mode
-            # starting at EV_TILT) the direction of x_r decides
-            tilt_on = True
-            if p[I_KAP] != 0.0:
-                fac0 = 1.0 + p[I_KAP] * xr / G1
-                tilt_on = fac0 > 1e-13 or (fac0 > -1e-13 and p[I_KAP] * vr > 0.0)
-            if gmode == GM_SLIP:
-                mk = 0 if sgm > 0.0 else 1
-            elif gmode == GM_PSTICK:
-                mk = 2
-            else:
-                mk = 3 if sgm > 0.0 else 4
             key = contact * 10 + mk * 2 + (0 if tilt_on else 1)
             mode_system(p, contact, gmode, sgm, tilt_on, fe_level, gA, gb0, gbc)
             if c_done[key] == 0:
@@ -2570,134 +2730,21 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             if lin_gen:
                 h_slow = TWO_PI / max(c_slow[key], Om, 1e-300) / nper
                 h_slow = min(max(h_slow, h), tau_end)
-            # events of this mode
-            ne = 0
-            if contact == 0:
-                for j in range(NB):
-                    evc[ne, j] = -coef[0, j]
-                evc[ne, 4] += G1
-                evcode[ne] = EV_FRONT_ON
-                evtol[ne] = tol_x
-                ne += 1
-                if back:
-                    for j in range(NB):
-                        evc[ne, j] = coef[0, j]
-                    evc[ne, 4] += G2
-                    evcode[ne] = EV_BACK_ON
-                    evtol[ne] = tol_x
-                    ne += 1
-            elif contact == 1:
-                for j in range(NB):
-                    evc[ne, j] = coef[0, j]
-                evc[ne, 4] -= G1
-                evcode[ne] = EV_FRONT_OFF
-                evtol[ne] = tol_x
-                ne += 1
-            else:
-                for j in range(NB):
-                    evc[ne, j] = -coef[0, j]
-                evc[ne, 4] -= G2
-                evcode[ne] = EV_BACK_OFF
-                evtol[ne] = tol_x
-                ne += 1
-            for j in range(NB):
-                cF[j] = K * coef[0, j] + Cd * coef[1, j]
-            cF[4] += F0
-            if lin_gen:
-                ne = general_events(p, gmode, sgm, tilt_on, coef, md, Om, evc, evcode, evtol, ne, tol_v, tol_F,
-                                    gwork)
-            elif shell == STICK:
-                if p[I_PB] < np.inf:
-                    for j in range(NB):
-                        evc[ne, j] = -cF[j]
-                        evc[ne + 1, j] = cF[j]
-                    if p[I_KAP] != 0.0:
-                        # tilt: breakaway P_b (1 + kappa x_r / G_1), linear in the state
-                        kq = p[I_PB] * p[I_KAP] / G1
-                        for j in range(NB):
-                            evc[ne, j] += kq * coef[0, j]
-                            evc[ne + 1, j] += kq * coef[0, j]
-                    evc[ne, 4] += p[I_PB]
-                    evc[ne + 1, 4] += p[I_PB]
-                    evcode[ne] = EV_BREAK_POS
-                    evcode[ne + 1] = EV_BREAK_NEG
-                    evtol[ne] = tol_F
-                    evtol[ne + 1] = tol_F
-                    ne += 2
-            else:
-                sg = 1.0 if shell == SLIP_POS else -1.0
-                for j in range(NB):
-                    evc[ne, j] = sg * coef[3, j]
-                evcode[ne] = EV_SLIP_END
-                evtol[ne] = tol_v
-                ne += 1
-                if p[I_VFAST] < np.inf:
-                    for j in range(NB):
-                        evc[ne, j] = -sg * coef[3, j]
-                    evc[ne, 4] += p[I_VFAST]
-                    evcode[ne] = EV_FAST_ON
-                    evtol[ne] = tol_v
-                    ne += 1
-            if lin_gen:
-                for e in range(ne):
-                    deriv_coefs(evc[e], md, Om, devc[e])
-                    deriv_coefs(devc[e], md, Om, ddevc[e])
-                deriv_coefs(cF, md, Om, dcF)
-                deriv_coefs(dcF, md, Om, ddcF)
-            else:
-                for e in range(ne):
-                    deriv_base(evc[e], md, Om, devc[e])
-                    deriv_base(devc[e], md, Om, ddevc[e])
-                deriv_base(cF, md, Om, dcF)
-                deriv_base(dcF, md, Om, ddcF)
+            ne = mode_events(p, contact, shell, lin_gen, gmode, sgm, tilt_on, coef, md, Om, tol_x, tol_v, tol_F,
+                             evc, evcode, evtol, cF, gwork)
+            event_derivatives(ne, lin_gen, md, Om, evc, devc, ddevc, cF, dcF, ddcF)
             ev, tau_ev, maxF, t_maxF = locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om,
                                                     s, tau_end, h, h_slow, recording, maxF, t_maxF, period * T,
                                                     B, Bs, ga, dga, negc, negdc, not lin_gen)
-            # end state
-            if lin_gen:
-                basis(tau_ev, s, md, Om, B)
-                xr1 = dot9(coef[0], B)
-                vr1 = dot9(coef[1], B)
-                Xc1 = dot9(coef[2], B)
-                Vc1 = dot9(coef[3], B)
-                d1 = dot9(coef[R_D], B)
-            else:
-                basis_base(tau_ev, s, md, Om, B)
-                xr1 = dot_base(coef[0], B)
-                vr1 = dot_base(coef[1], B)
-                Xc1 = dot_base(coef[2], B)
-                Vc1 = dot_base(coef[3], B)
-                d1 = dsub
+            xr1, vr1, Xc1, Vc1, d1 = mode_state(tau_ev, s, md, Om, coef, lin_gen, dsub, B)
             if recording:
                 F1 = abs(K * xr1 + Cd * vr1 + F0)
                 if F1 > maxF:
                     maxF = F1
                     t_maxF = period * T + s + tau_ev
-            # samples
             if recording and n_samples > 0:
-                while j_sample < n_samples:
-                    ts = sample_times[j_sample] - (period - n_transient) * T
-                    if ts >= s + tau_ev:
-                        break
-                    tt = ts - s
-                    if tt < 0.0:
-                        tt = 0.0
-                    basis(tt, s, md, Om, Bs)
-                    sx = dot9(coef[0], Bs)
-                    sv = dot9(coef[1], Bs)
-                    sXc = dot9(coef[2], Bs)
-                    sVc = dot9(coef[3], Bs)
-                    row = samples[j_sample]
-                    row[S_T] = rec_t0 + sample_times[j_sample]
-                    row[S_XM] = sXc + sx
-                    row[S_XC] = sXc
-                    row[S_VM] = sVc + sv
-                    row[S_VC] = sVc
-                    row[S_XR] = sx
-                    row[S_CONTACT] = contact
-                    row[S_STICK] = 1.0 if seg_stick else 0.0
-                    row[S_FI] = K * sx + Cd * sv + F0
-                    j_sample += 1
+                j_sample = mode_samples(coef, md, Om, s, tau_ev, sample_times, j_sample, (period - n_transient) * T,
+                                        rec_t0, contact, seg_stick, K, Cd, F0, samples, Bs)
             if recording and do_energy:
                 gl_energy(p, coef, contact, shell, s, tau_ev, h, h_slow, md, Om, fe_level, Bs, energy)
                 if lin_gen:
