@@ -220,15 +220,37 @@ def friction_level(p, V, xr):
     Coulomb, or the speed law of eqs 22-23 held below V_min, scaled by the tilt factor."""
     if p[I_LAW] < 0.5 or V < p[I_VMIN]:
         L = p[I_L0]
-    elif p[I_LN] == 0.25:
-        # the exponent of eqs 22 and 23: two square roots cost 4 ns against 14 ns for the general
-        # power (the right-hand side of a speed-law slip, 13 times per DOP853 step, issue 13)
-        L = p[I_LA] * math.sqrt(math.sqrt(V)) + p[I_LB]
     else:
-        L = p[I_LA] * V ** p[I_LN] + p[I_LB]
+        L = speed_law(p, V)
     if p[I_KAP] != 0.0:
         L *= tilt_factor(p, xr)
     return L
+
+
+@kernel
+def speed_law(p, V):
+    """The kinetic law a V^n + b [N] of eqs 22-23 at slip speed V > 0 [m/s] (p in SI: a [N (s/m)^n])."""
+    if p[I_LN] == 0.25:
+        # the exponent of eqs 22 and 23: two square roots cost 4 ns against 14 ns for the general
+        # power (the right-hand side of a speed-law slip, 13 times per DOP853 step, issue 13)
+        return p[I_LA] * math.sqrt(math.sqrt(V)) + p[I_LB]
+    return p[I_LA] * V ** p[I_LN] + p[I_LB]
+
+
+@kernel
+def slip_level(p, V, xr, cont):
+    """The friction level [N] in the right-hand side of an adaptive slip at speed V >= 0 [m/s]:
+    :func:`friction_level`, or with ``cont`` (a slip above V_min, which ends at its V_min event) the
+    speed law continued below V_min. The step that carries the slip across V_min then sees a smooth
+    right-hand side, not the held level's kink, which its error estimate rejected step after step;
+    the event is located on the dense output and nothing past it is kept, so the slip itself is
+    unchanged (issue 13)."""
+    if cont and V > 0.0:
+        L = speed_law(p, V)
+        if p[I_KAP] != 0.0:
+            L *= tilt_factor(p, xr)
+        return L
+    return friction_level(p, V, xr)
 
 
 @kernel
@@ -1173,25 +1195,26 @@ NY = 10  # x_r, v_r, V_c, X_c, W_drive, D_damp, D_contact, D_friction, d, W_plug
 
 
 @kernel
-def rk_rhs(p, contact, sgn, s, fe_level, y, dy):
+def rk_rhs(p, contact, sgn, s, fe_level, y, dy, cont):
     """Right-hand side in (x_r, v_r, V_c, X_c, W_drive, D_damp, D_contact, D_friction, d).
 
     d = X_c - X_p is the extension of the substrate's presliding spring (substrate_compliance);
     sgn = 0: contact patch stuck (compliance only).
 
-    D_friction includes the viscous drag c_v V_c^2 (the resisting force of :func:`kinetic_level`)."""
+    D_friction includes the viscous drag c_v V_c^2 (the resisting force of :func:`kinetic_level`);
+    cont: the speed law continued below V_min (:func:`slip_level`)."""
     K, C, F0 = contact_terms(p, contact)
     fe = drive_force(p, s, fe_level)
     Fi = K * y[0] + C * y[1] + F0
     # slip speed along the slip direction: > 0 during the slip; written without |.| so that the
     # right-hand side continues smoothly past the slip's end inside the step that locates it
     if p[I_KS] > 0.0:
-        rk_rhs_patch(p, sgn, Fi, fe, y, dy)
+        rk_rhs_patch(p, sgn, Fi, fe, y, dy, cont)
         dy[5] = p[I_C] * y[1] * y[1]
         dy[6] = (C - p[I_C]) * y[1] * y[1]
         return
     Vs = sgn * y[2]
-    L = friction_level(p, Vs if Vs > 0.0 else 0.0, y[0])
+    L = slip_level(p, Vs if Vs > 0.0 else 0.0, y[0], cont)
     dy[8] = 0.0
     ac = (-sgn * L - p[I_CV] * y[2] + Fi) / p[I_MC]
     am = (fe - Fi) / p[I_MM]
@@ -1206,7 +1229,7 @@ def rk_rhs(p, contact, sgn, s, fe_level, y, dy):
 
 
 @kernel
-def rk_rhs_patch(p, sgn, Fi, fe, y, dy):
+def rk_rhs_patch(p, sgn, Fi, fe, y, dy, cont):
     """Shell on a compliant wall (substrate_compliance, physics.md section 3): spring k_s and damper
     c_s between the shell and a massless contact patch carrying the set-valued friction.
 
@@ -1229,7 +1252,7 @@ def rk_rhs_patch(p, sgn, Fi, fe, y, dy):
             dd = (sgn * L - ks * y[8]) / cs
         else:
             Vs = sgn * Vc
-            L = friction_level(p, Vs if Vs > 0.0 else 0.0, y[0])
+            L = slip_level(p, Vs if Vs > 0.0 else 0.0, y[0], cont)
             dd = 0.0
         Fs = sgn * L
         diss = L * sgn * (Vc - dd) + cs * dd * dd
@@ -1453,7 +1476,7 @@ RK_ORDER_EXP = 1.0 / 8.0  # step-size exponent: 1 / (error-estimator order 7 + 1
 
 
 @kernel
-def dop853_stages(p, contact, sg, s, h, fe_level, y, K, yt, i0, i1, plug, held, t0, pq, pfail, full):
+def dop853_stages(p, contact, sg, s, h, fe_level, y, K, yt, i0, i1, plug, held, t0, pq, pfail, full, cont):
     """Stages i0 .. i1-1 of a DOP853 step of size h [s] from y at time s within the period:
     K[i] = f(s + c_i h, y + h sum_m a_im K[m]) (:func:`seg_rhs` with held, t0, pq, pfail when a user
     plugin force acts, else :func:`rk_rhs`). The right-hand side reads only the mechanical state
@@ -1484,29 +1507,29 @@ def dop853_stages(p, contact, sg, s, h, fe_level, y, K, yt, i0, i1, plug, held, 
             for q in range(4, NY):
                 yt[q] = y[q] + h * yt[q]
         if plug:
-            seg_rhs(p, contact, sg, held, s + DOP_C[i] * h, t0, fe_level, yt, K[i], pq, pfail)
+            seg_rhs(p, contact, sg, held, s + DOP_C[i] * h, t0, fe_level, yt, K[i], pq, pfail, cont)
         else:
-            rk_rhs(p, contact, sg, s + DOP_C[i] * h, fe_level, yt, K[i])
+            rk_rhs(p, contact, sg, s + DOP_C[i] * h, fe_level, yt, K[i], cont)
 
 
 @kernel
-def dop853_step(p, contact, sg, s, h, fe_level, y, k1, K, yt, y1, k7, plug, held, t0, pq, pfail, full):
+def dop853_step(p, contact, sg, s, h, fe_level, y, k1, K, yt, y1, k7, plug, held, t0, pq, pfail, full, cont):
     """One DOP853 step of size h [s] from y at time s within the period (derivative k1 = f(s, y)).
 
     Fills the stages K[0..12] (K[12] = f(s + h, y1), also copied to k7 for the next step, FSAL)
     and the 8th-order solution y1. plug, held, t0, pq, pfail, full as in :func:`dop853_stages`."""
     for q in range(NY):
         K[0, q] = k1[q]
-    dop853_stages(p, contact, sg, s, h, fe_level, y, K, yt, 1, 12, plug, held, t0, pq, pfail, full)
+    dop853_stages(p, contact, sg, s, h, fe_level, y, K, yt, 1, 12, plug, held, t0, pq, pfail, full, cont)
     for q in range(NY):
         acc = 0.0
         for m in range(12):
             acc += DOP_B[m] * K[m, q]
         y1[q] = y[q] + h * acc
     if plug:
-        seg_rhs(p, contact, sg, held, s + h, t0, fe_level, y1, K[12], pq, pfail)
+        seg_rhs(p, contact, sg, held, s + h, t0, fe_level, y1, K[12], pq, pfail, cont)
     else:
-        rk_rhs(p, contact, sg, s + h, fe_level, y1, K[12])
+        rk_rhs(p, contact, sg, s + h, fe_level, y1, K[12], cont)
     for q in range(NY):
         k7[q] = K[12, q]
 
@@ -1533,11 +1556,11 @@ def dop853_error(K, h, y, y1, rtol, atol_x, atol_v):
 
 
 @kernel
-def dop853_dense(p, contact, sg, s, h, fe_level, y, y1, K, yt, rc, plug, held, t0, pq, pfail, full):
+def dop853_dense(p, contact, sg, s, h, fe_level, y, y1, K, yt, rc, plug, held, t0, pq, pfail, full, cont):
     """Continuous extension of an accepted DOP853 step: three more stages, then rc[0] = y and
     rc[1..7] the coefficients evaluated by :func:`dense_eval` (7th order in theta); plug, held, t0,
     pq, pfail, full as in :func:`dop853_stages`."""
-    dop853_stages(p, contact, sg, s, h, fe_level, y, K, yt, 13, 16, plug, held, t0, pq, pfail, full)
+    dop853_stages(p, contact, sg, s, h, fe_level, y, K, yt, 13, 16, plug, held, t0, pq, pfail, full, cont)
     for q in range(NY):
         dy = y1[q] - y[q]
         rc[0, q] = y[q]
@@ -1739,7 +1762,7 @@ def held_rhs(p, contact, s, fe_level, y, dy, Fm):
 
 
 @kernel
-def seg_rhs(p, contact, sgn, held, s, t0, fe_level, y, dy, pq, pfail):
+def seg_rhs(p, contact, sgn, held, s, t0, fe_level, y, dy, pq, pfail, cont):
     """Right-hand side of the adaptive segment with a user plugin force, at time s within the period
     starting at t0 [s]: :func:`rk_rhs` plus F_m on the magnet and F_c on the shell, their power
     F_m V_m + F_c V_c in y[9]; held: a shell stuck on a rigid wall (:func:`held_rhs`)."""
@@ -1747,7 +1770,7 @@ def seg_rhs(p, contact, sgn, held, s, t0, fe_level, y, dy, pq, pfail):
         Fm, _ = plugin_force(pq, pfail, t0 + s, y[0], y[1], y[3], 0.0)
         held_rhs(p, contact, s, fe_level, y, dy, Fm)
         return
-    rk_rhs(p, contact, sgn, s, fe_level, y, dy)
+    rk_rhs(p, contact, sgn, s, fe_level, y, dy, cont)
     Fm, Fc = plugin_force(pq, pfail, t0 + s, y[0], y[1], y[3], y[2])
     dy[1] += Fm / p[I_MM] - Fc / p[I_MC]
     dy[2] += Fc / p[I_MC]
@@ -2287,6 +2310,9 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
     hmax = TWO_PI / wmax / 2.0
     # stage states beyond the mechanical state only where the right-hand side reads d (dop853_stages)
     full = compliant
+    # a speed-law slip above V_min that ends at its V_min event: the law continued below V_min in the
+    # right-hand side (slip_level); not where the segment itself spans V_min (vlo below it)
+    cont = p[I_LAW] > 0.5 and (shell == FAST_POS or shell == FAST_NEG) and vlo >= p[I_VMIN]
     y[0] = xr
     y[1] = vr
     y[2] = Vc
@@ -2297,11 +2323,15 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
     tau = 0.0
     hh = hmax * 0.1
     if plug:
-        seg_rhs(p, contact, sg, held, s, t0, fe_level, y, k1, pq, pfail)
+        seg_rhs(p, contact, sg, held, s, t0, fe_level, y, k1, pq, pfail, cont)
     else:
-        rk_rhs(p, contact, sg, s, fe_level, y, k1)
+        rk_rhs(p, contact, sg, s, fe_level, y, k1, cont)
     atol_x = rtol * p[I_XS]
     atol_v = rtol * p[I_VS]
+    if cont and k1[2] != 0.0:
+        # a speed law's derivatives grow as V^-k towards V_min: the first step is at most the time the
+        # slip speed takes to change by a tenth (fewer rejected first steps: 11-30 -> 0-7 per period)
+        hh = min(hh, 0.1 * abs(y[2] / k1[2]))
     nsteps = 0
     rk_rej = False
     rk_err_old = 0.0
@@ -2316,7 +2346,7 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
             break
         hh = min(hh, hmax, tau_end - tau)
         sa = s + tau
-        dop853_step(p, contact, sg, sa, hh, fe_level, y, k1, KD, yt, y1, k7, plug, held, t0, pq, pfail, full)
+        dop853_step(p, contact, sg, sa, hh, fe_level, y, k1, KD, yt, y1, k7, plug, held, t0, pq, pfail, full, cont)
         if pfail[0] != 0.0:
             status = STATUS_PLUGIN
             status_t = t0 + sa
@@ -2346,7 +2376,7 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
                 dsb = k7[0] if ((contact == 0 and j == 1) or contact == 1) else -k7[0]
                 if dsa < 0.0 and dsb > 0.0:
                     if not rc_ok:
-                        dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail, full)
+                        dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail, full, cont)
                         rc_ok = True
                     a_ = 0.0
                     b_ = 1.0
@@ -2366,7 +2396,7 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
                         hi = 0.5 * (a_ + b_)
             if hi > 0.0:
                 if not rc_ok:
-                    dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail, full)
+                    dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail, full, cont)
                     rc_ok = True
                 a_ = lo
                 b_ = hi
@@ -2396,7 +2426,7 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
             dFb = K * k7[0] + Cd * k7[1]
             if dFa * dFb < 0.0:
                 if not rc_ok:
-                    dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail, full)
+                    dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail, full, cont)
                     rc_ok = True
                 a_ = 0.0
                 b_ = th_stop
@@ -2432,7 +2462,7 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
                 if th < 0.0:
                     th = 0.0
                 if not rc_ok:
-                    dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail, full)
+                    dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail, full, cont)
                     rc_ok = True
                 dense_eval(rc, th, yd)
                 row = samples[j_sample]
