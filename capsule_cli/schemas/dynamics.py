@@ -97,11 +97,11 @@ class MagnifyMap(Strict):
                                 "split along P_d into jobs of about this length, tiny maps grouped into one job")
     threads_per_job: int = Field(default=2, ge=1, description="threads (cores) of one map job [-]")
     cost_us_per_period: dict[Literal["coulomb", "fixed", "eq22", "eq23"], float] = Field(
-        default_factory=lambda: {"coulomb": 15.0, "fixed": 10.0, "eq22": 54.0, "eq23": 46.0},
+        default_factory=lambda: {"coulomb": 15.0, "fixed": 10.0, "eq22": 46.0, "eq23": 42.0},
         description="engine cost per simulated period on one core [us], by friction kind: sizes the map jobs. "
                     "eq22 / eq23 measured by `capsule-cli bench --fig19 --json` on the full 100 x 100 grid "
-                    "(wall time x 2 threads / nominal periods, 230 per point: 54 and 46 us; 2-core dev machine, "
-                    "quiet, 2026-11-24, session 10); coulomb / fixed from the 2026-11-23 sample, above that "
+                    "(wall time x 2 threads / nominal periods, 230 per point: 45.5 and 41.3 us; 2-core dev "
+                    "machine, quiet, 2026-11-24, session 10); coulomb / fixed from the 2026-11-23 sample, above that "
                     "run's 5-10 and 4 us (session 10's full grid: 3-8 and 4 us)")
 
 
