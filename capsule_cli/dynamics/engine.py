@@ -1483,7 +1483,8 @@ def dop853_stages(p, contact, sg, s, h, fe_level, y, K, yt, i0, i1, plug, held, 
     (x_r, v_r, V_c, X_c) and, on a compliant wall, the patch extension d, never the energy
     integrals; so the stage states of the components after the fourth are formed only with
     ``full`` (a compliant wall), and the stages themselves, the step and its energy integrals are
-    the same to the bit either way (40 % of the stage arithmetic without them). The loops have
+    the same to the bit either way (40 % of the stage arithmetic without them). ``cont``: the speed
+    law continued below V_min in the right-hand side (:func:`slip_level`). The loops have
     constant bounds so that LLVM unrolls them: written once for both ranges
     (a helper taking the range) the speed-law map points were 2-3 % slower."""
     for i in range(i0, i1):
@@ -1517,7 +1518,7 @@ def dop853_step(p, contact, sg, s, h, fe_level, y, k1, K, yt, y1, k7, plug, held
     """One DOP853 step of size h [s] from y at time s within the period (derivative k1 = f(s, y)).
 
     Fills the stages K[0..12] (K[12] = f(s + h, y1), also copied to k7 for the next step, FSAL)
-    and the 8th-order solution y1. plug, held, t0, pq, pfail, full as in :func:`dop853_stages`."""
+    and the 8th-order solution y1. plug, held, t0, pq, pfail, full, cont as in :func:`dop853_stages`."""
     for q in range(NY):
         K[0, q] = k1[q]
     dop853_stages(p, contact, sg, s, h, fe_level, y, K, yt, 1, 12, plug, held, t0, pq, pfail, full, cont)
@@ -1559,7 +1560,7 @@ def dop853_error(K, h, y, y1, rtol, atol_x, atol_v):
 def dop853_dense(p, contact, sg, s, h, fe_level, y, y1, K, yt, rc, plug, held, t0, pq, pfail, full, cont):
     """Continuous extension of an accepted DOP853 step: three more stages, then rc[0] = y and
     rc[1..7] the coefficients evaluated by :func:`dense_eval` (7th order in theta); plug, held, t0,
-    pq, pfail, full as in :func:`dop853_stages`."""
+    pq, pfail, full, cont as in :func:`dop853_stages`."""
     dop853_stages(p, contact, sg, s, h, fe_level, y, K, yt, 13, 16, plug, held, t0, pq, pfail, full, cont)
     for q in range(NY):
         dy = y1[q] - y[q]
