@@ -277,6 +277,14 @@ def test_substrate_compliance_matches_reference(prm, f_Hz, kinds):
     assert kinds <= {k for _, k in ev}
 
 
+def test_substrate_compliance_with_a_speed_law_matches_reference():
+    """A patch sliding under the speed law (c_s = 0) runs on past V_min to the patch's stop, so its
+    right-hand side keeps the law held below V_min (no continuation: engine.slip_level). Continued by
+    mistake, the event times were 1.8e-5 s off the reference."""
+    s = build_system("one_sided", {"Pf_N": 0.02}, ["speed_dependent_friction", "substrate_compliance"])
+    _compare_reference(s, Drive(0.15, 30.0), 4)
+
+
 def test_substrate_compliance_energy_balance_counts_the_presliding_spring():
     for prm, tol in (({"compliance_mm_N": 1.0, "Pf_N": 0.05}, 1e-9),
                      ({"compliance_mm_N": 1.0, "substrate_damping_Ns_m": 0.05, "Pf_N": 0.05}, 1e-7)):

@@ -2312,8 +2312,9 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
     # stage states beyond the mechanical state only where the right-hand side reads d (dop853_stages)
     full = compliant
     # a speed-law slip above V_min that ends at its V_min event: the law continued below V_min in the
-    # right-hand side (slip_level); not where the segment itself spans V_min (vlo below it)
-    cont = p[I_LAW] > 0.5 and (shell == FAST_POS or shell == FAST_NEG) and vlo >= p[I_VMIN]
+    # right-hand side (slip_level); not where the segment itself spans V_min: vlo below it, or a patch
+    # sliding on a compliant wall, which runs on to the patch's stop (rk_event_value)
+    cont = p[I_LAW] > 0.5 and (shell == FAST_POS or shell == FAST_NEG) and vlo >= p[I_VMIN] and not compliant
     y[0] = xr
     y[1] = vr
     y[2] = Vc
