@@ -58,7 +58,8 @@ def test_stage_states_of_the_energy_integrals_are_not_needed(slip_case):
     outs = []
     for full, (y1, K, yt) in ((True, (ya, Ka, yta)), (False, (yb, Kb, ytb))):
         rc = np.zeros((8, E.NY))
-        E.dop853_dense(p, 0, 1.0, 0.003, 1e-3, 0.0, y, y1, K, yt, rc, False, False, 0.0, NOPLUG, np.zeros(1), full, False)
+        E.dop853_dense(p, 0, 1.0, 0.003, 1e-3, 0.0, y, y1, K, yt, rc, False, False, 0.0, NOPLUG, np.zeros(1), full,
+                       False)
         out = np.zeros(E.NY)
         E.dense_eval(rc, 0.37, out)
         outs.append(out.copy())
@@ -127,7 +128,8 @@ def test_map_tolerance_leaves_coulomb_exact_and_moves_a_speed_law_point_little()
         assert abs(a["Af"][0, 0] - b["Af"][0, 0]) < 1e-5 * b["Af"][0, 0], law
 
 
-@pytest.mark.parametrize("Pd_N,f_Hz", [(0.4307070707070707, 24.444444444444443), (0.18323232323232325, 17.373737373737374)])
+@pytest.mark.parametrize("Pd_N,f_Hz", [(0.4307070707070707, 24.444444444444443),
+                                       (0.18323232323232325, 17.373737373737374)])
 def test_speed_law_slip_ending_at_V_min_keeps_the_requested_accuracy(Pd_N, f_Hz):
     """A slip above V_min (eq 22) ends at its V_min event. Its right-hand side continues the speed law
     below V_min (engine.slip_level), so the step that crosses V_min is smooth; with the held level's

@@ -2219,11 +2219,11 @@ def mode_state(tau, s, md, Om, coef, lin_gen, dsub, B):
     """Return the state (x_r [m], v_r [m/s], X_c [m], V_c [m/s], d [m]) of a linear mode at time tau [s]
     after its start at phase s [s], from its closed form (a base mode keeps the substrate's extension
     dsub [m]); B is work space for the basis."""
-    if lin_gen:
-        basis(tau, s, md, Om, B)
-        return dot9(coef[0], B), dot9(coef[1], B), dot9(coef[2], B), dot9(coef[3], B), dot9(coef[R_D], B)
-    basis_base(tau, s, md, Om, B)
-    return dot_base(coef[0], B), dot_base(coef[1], B), dot_base(coef[2], B), dot_base(coef[3], B), dsub
+    base = not lin_gen
+    mode_basis(base, tau, s, md, Om, B)
+    d = mode_dot(base, coef[R_D], B) if lin_gen else dsub
+    return mode_dot(base, coef[0], B), mode_dot(base, coef[1], B), mode_dot(base, coef[2], B), \
+        mode_dot(base, coef[3], B), d
 
 
 @kernel
@@ -2378,7 +2378,8 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
                 dsb = k7[0] if ((contact == 0 and j == 1) or contact == 1) else -k7[0]
                 if dsa < 0.0 and dsb > 0.0:
                     if not rc_ok:
-                        dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail, full, cont)
+                        dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail,
+                                     full, cont)
                         rc_ok = True
                     a_ = 0.0
                     b_ = 1.0
@@ -2398,7 +2399,8 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
                         hi = 0.5 * (a_ + b_)
             if hi > 0.0:
                 if not rc_ok:
-                    dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail, full, cont)
+                    dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail,
+                                 full, cont)
                     rc_ok = True
                 a_ = lo
                 b_ = hi
@@ -2428,7 +2430,8 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
             dFb = K * k7[0] + Cd * k7[1]
             if dFa * dFb < 0.0:
                 if not rc_ok:
-                    dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail, full, cont)
+                    dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail,
+                                 full, cont)
                     rc_ok = True
                 a_ = 0.0
                 b_ = th_stop
@@ -2464,7 +2467,8 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
                 if th < 0.0:
                     th = 0.0
                 if not rc_ok:
-                    dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail, full, cont)
+                    dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail,
+                                 full, cont)
                     rc_ok = True
                 dense_eval(rc, th, yd)
                 row = samples[j_sample]
