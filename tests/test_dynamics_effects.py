@@ -285,6 +285,61 @@ def test_substrate_compliance_with_a_speed_law_matches_reference():
     _compare_reference(s, Drive(0.15, 30.0), 4)
 
 
+def _compliant_tilt(prm, zeta=0.0, effs=()):
+    """A compliant wall with tilt; zeta: the presliding damper's damping ratio (0: c_s = 0)."""
+    c = prm.get("compliance_mm_N", 1.0)
+    Mc = build_system("one_sided", {}).model.mass_capsule_kg
+    cs = 2.0 * zeta * math.sqrt(Mc / (c * 1e-3))
+    return build_system("one_sided", {**prm, "compliance_mm_N": c, "substrate_damping_Ns_m": cs},
+                        [*effs, "substrate_compliance", "tilt_friction"])
+
+
+@pytest.mark.parametrize("prm, zeta, f_Hz", [
+    ({"Pf_N": 0.02, "kappa": 0.2, "compliance_mm_N": 0.2}, 0.0, 30.0),  # was a Zeno stop at t = 0.0191 s
+    ({"Pf_N": 0.05, "kappa": 0.5}, 0.0, 20.0),
+    ({"Pf_N": 0.02, "kappa": -2.0}, 0.0, 20.0),  # the level held at zero beyond x_r = G_1 / 2
+    ({"Pf_N": 0.02, "kappa": -2.0}, 0.05, 20.0),  # the same with a damped patch
+])
+def test_substrate_compliance_with_tilt_matches_reference(prm, zeta, f_Hz):
+    """With c_s = 0 the sliding patch keeps k_s d = sgn L(0, x_r): d follows the tilt, and the patch
+    stops with its force at the level. Holding d at its value at the slide's start (the old code) left
+    k_s d off the level at the stop, and the patch stuck and broke away at one instant without end
+    (Zeno). Where the level is held at zero the patch cannot stick (engine.decide_patch)."""
+    s = _compliant_tilt(prm, zeta)
+    eng, ev, dt = _compare_reference(s, Drive(0.15, f_Hz), 4, v_tol=1e-6)
+    assert {"stick", "slip_forward", "slip_backward"} <= {k for _, k in ev}
+
+
+def test_all_five_effects_together_match_reference():
+    """Every built-in dynamics effect at once, compliance with c_s = 0 (a speed law takes no damped patch)."""
+    s = _compliant_tilt({"Pf_N": 0.02, "kappa": 0.2, "compliance_mm_N": 0.2},
+                        effs=("speed_dependent_friction", "secondary_constraint", "viscous_drag"))
+    eng, ev, dt = _compare_reference(s, Drive(0.15, 30.0), 4, v_tol=1e-6)
+    assert {"back_contact_on", "front_contact_on", "stick"} <= {k for _, k in ev}
+
+
+@pytest.mark.parametrize("kappa", [0.5, -2.0])
+def test_compliance_with_tilt_takes_the_cs_to_zero_limit(kappa):
+    """c_s = 0 is the limit of a damped patch: just above PATCH_ZETA_MIN (c_s integrated) the
+    velocity is that of c_s = 0 to 1e-3 mm/s, with the tilt level moving and held at zero."""
+    v = []
+    for zeta in (0.0, 2.0 * PATCH_ZETA_MIN):
+        s = _compliant_tilt({"Pf_N": 0.02, "kappa": kappa, "compliance_mm_N": 1e-3}, zeta)
+        v.append(simulate(s.model, Drive(0.15, 20.0), s.friction(), periods=4, transient_periods=2)
+                 .average_velocity_mm_s)
+    assert abs(v[1] - v[0]) < 1e-3, v
+    assert abs(v[0]) > 1.0, v
+
+
+@pytest.mark.parametrize("prm, zeta", [({"Pf_N": 0.02, "kappa": 0.2}, 0.0), ({"Pf_N": 0.02, "kappa": -2.0}, 0.0),
+                                       ({"Pf_N": 0.02, "kappa": -2.0}, 0.05)])
+def test_compliance_with_tilt_energy_balance(prm, zeta):
+    s = _compliant_tilt(prm, zeta)
+    r = simulate(s.model, Drive(0.15, 20.0), s.friction(), periods=10, transient_periods=3)
+    assert r.energy["friction_J"] > 0
+    assert abs(r.energy["relative_residual"]) < 1e-8, r.energy
+
+
 def test_substrate_compliance_energy_balance_counts_the_presliding_spring():
     for prm, tol in (({"compliance_mm_N": 1.0, "Pf_N": 0.05}, 1e-9),
                      ({"compliance_mm_N": 1.0, "substrate_damping_Ns_m": 0.05, "Pf_N": 0.05}, 1e-7)):

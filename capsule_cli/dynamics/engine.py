@@ -686,6 +686,9 @@ def mode_system(p, contact, gm, sg, tilt_on, fe_level, A, b0, bc):
             A[R_D, R_XR] = sg * L1 / p[I_CS]
             A[R_D, R_D] = -p[I_KS] / p[I_CS]
             b0[R_D] = sg * L0 / p[I_CS]
+        elif gm == GM_PSLIDE:
+            # c_s = 0: the massless patch's balance k_s d = sg (L0 + L1 x_r) holds throughout
+            A[R_D, R_VR] = sg * L1 / p[I_KS]
     # relative acceleration (F_e - F_i) / M_m - a_c
     A[R_XR, R_VR] = 1.0
     A[R_VR, R_XR] = -K / Mm - A[R_VC, R_XR]
@@ -952,7 +955,7 @@ def general_events(p, gm, sg, tilt_on, coef, md, Om, evc, evcode, evtol, ne, tol
             evtol[ne + 1] = tol_F
             ne += 2
         return ne
-    if gm == GM_PSLIDE and p[I_CS] > 0.0:
+    if gm == GM_PSLIDE and (p[I_CS] > 0.0 or p[I_KAP] != 0.0):
         deriv_coefs(coef[R_D], md, Om, work)
         for j in range(NB):
             evc[ne, j] = sg * (coef[R_VC, j] - work[j])
@@ -1003,7 +1006,7 @@ def gl_friction(p, coef, md, Om, s0, tau1, h, h_slow, gm, sg, tilt_on, dd, B, ac
     L0, L1 = friction_row(p, tilt_on)
     cv = p[I_CV]
     cs = p[I_CS]
-    slide_damped = gm == GM_PSLIDE and cs > 0.0
+    slide_damped = gm == GM_PSLIDE and (cs > 0.0 or p[I_KAP] != 0.0)
     if slide_damped:
         deriv_coefs(coef[R_D], md, Om, dd)
     # pieces of h, or growing from h to h_slow (a fast real mode)
@@ -1229,14 +1232,28 @@ def rk_rhs(p, contact, sgn, s, fe_level, y, dy, cont):
 
 
 @kernel
+def held_patch_rate(p, sgn, xr, vr):
+    """Rate d' [m/s] of the presliding spring's extension while a patch slides in direction sgn on a
+    wall with c_s = 0 (substrate_compliance): the massless patch keeps k_s d = sgn L(0, x_r), its level
+    at zero slip speed (Coulomb's kinetic level, or a speed law's held at V_min) with the tilt factor,
+    so d follows the tilt (tilt_friction) and the patch stops with its force at the level; 0 without
+    tilt or where the tilt level is held at zero."""
+    if p[I_KAP] == 0.0 or tilt_factor(p, xr) <= 0.0:
+        return 0.0
+    return sgn * p[I_L0] * p[I_KAP] / p[I_G1] * vr / p[I_KS]
+
+
+@kernel
 def rk_rhs_patch(p, sgn, Fi, fe, y, dy, cont):
     """Shell on a compliant wall (substrate_compliance, physics.md section 3): spring k_s and damper
     c_s between the shell and a massless contact patch carrying the set-valued friction.
 
     Patch stuck (sgn = 0): force on the shell -(k_s d + c_s V_c), d' = V_c. Patch sliding in
     direction sgn: the massless patch balances k_s d + c_s (V_c - V_p) = sgn L, so the shell feels
-    -sgn L and d' = (sgn L - k_s d) / c_s; with c_s = 0 (the limit chosen for c_s -> 0) d stays at
-    sgn L / k_s and V_p = V_c. Dissipation: friction L |V_p|, damper c_s (V_c - V_p)^2, drag.
+    -sgn L and d' = (sgn L - k_s d) / c_s. With c_s = 0 (the limit chosen for c_s -> 0) k_s d is the
+    level at zero slip speed, sgn L(0, x_r), which moves only with the tilt (:func:`held_patch_rate`),
+    V_p = V_c - d', and a speed law's level is taken at V_p. Dissipation: friction L |V_p|, damper
+    c_s (V_c - V_p)^2, drag; with c_s = 0 the shell's work not stored in the spring.
     """
     ks = p[I_KS]
     cs = p[I_CS]
@@ -1250,12 +1267,15 @@ def rk_rhs_patch(p, sgn, Fi, fe, y, dy, cont):
         if cs > 0.0:
             L = friction_level(p, 0.0, y[0])  # Coulomb (a speed law with c_s > 0 is refused on packing)
             dd = (sgn * L - ks * y[8]) / cs
+            Fs = sgn * L
+            diss = L * sgn * (Vc - dd) + cs * dd * dd
         else:
-            Vs = sgn * Vc
+            dd = held_patch_rate(p, sgn, y[0], y[1])
+            Vs = sgn * (Vc - dd)
             L = slip_level(p, Vs if Vs > 0.0 else 0.0, y[0], cont)
-            dd = 0.0
-        Fs = sgn * L
-        diss = L * sgn * (Vc - dd) + cs * dd * dd
+            Fs = sgn * L
+            # the shell's work not stored in the spring (friction L |V_p| for Coulomb)
+            diss = Fs * Vc - ks * y[8] * dd
     ac = (Fi - Fs - cv * Vc) / p[I_MC]
     am = (fe - Fi) / p[I_MM]
     dy[0] = y[1]
@@ -1621,6 +1641,16 @@ def decide_patch(p, contact, xr, vr, Vc, d, fe, Fc):
         Fi = K * xr + C * vr + F0
         ac = (Fi - F - p[I_CV] * Vc + Fc) / p[I_MC]
         Fdot = p[I_KS] * Vc + p[I_CS] * ac
+        if Pb == 0.0:
+            # a zero level (tilt_friction held at zero) holds nothing: the patch goes where the force's
+            # first nonzero derivative takes it (with c_s = 0, F' = k_s V_c and F'' = k_s a_c), and
+            # sticks only if that is zero as well
+            rate = Fdot
+            if p[I_CS] == 0.0 and abs(Vc) <= 1e-13 * p[I_VS]:
+                rate = ac
+            if rate == 0.0:
+                return PATCH_STICK
+            return FAST_POS if rate > 0.0 else FAST_NEG
         dPb = p[I_PB] * p[I_KAP] / p[I_G1] * vr if Pb > 0.0 else 0.0
         if sgn * Fdot - dPb <= 0.0:
             return PATCH_STICK
@@ -1653,7 +1683,7 @@ def rk_event_value(p, contact, sgn, vlo, vhi, j, y):
             return 1.0
         if p[I_CS] > 0.0:  # patch speed V_p = V_c - d'
             return sgn * (y[2] - (sgn * friction_level(p, 0.0, y[0]) - p[I_KS] * y[8]) / p[I_CS])
-        return sgn * y[2]
+        return sgn * (y[2] - held_patch_rate(p, sgn, y[0], y[1]))
     if j == 3:
         return vhi - sgn * y[2] if vhi < np.inf else 1.0
     if j == 2:
@@ -2021,6 +2051,9 @@ def shell_transition(p, ev, shell, contact, xr, vr, Vc, dsub, fe_now, pFm, pFc, 
     new_shell = shell
     if compliant:
         if ev == EV_BREAK_POS or ev == EV_BREAK_NEG:
+            new_shell = decide_patch(p, contact, xr, vr, Vc, dsub, fe_now, pFc)
+        elif ev == EV_SLIP_END and tilt_factor(p, xr) == 0.0:
+            # stopping where the tilt level is held at zero: nothing holds the patch
             new_shell = decide_patch(p, contact, xr, vr, Vc, dsub, fe_now, pFc)
         elif ev == EV_SLIP_END:
             # the patch stops with its force at the kinetic level (<= breakaway): it sticks; a force

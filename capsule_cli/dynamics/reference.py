@@ -54,6 +54,9 @@ class _Sys:
         self.ks = 1.0 / model.compliance_m_N if model.compliance_m_N > 0 else 0.0
         self.cs = model.substrate_damping_Ns_m
         self.T = 1.0 / drive.frequency_Hz
+        mu = self.Mm * self.Mc / (self.Mm + self.Mc)
+        self.vscale = max(model.gap_m, drive.amplitude_N / model.spring_N_m, 1e-6) * \
+            max(self.Om, math.sqrt(model.spring_N_m / mu))  # velocity scale [m/s] for zero tests
         self.nrhs = 0
 
     def tilt(self, xr):
@@ -140,10 +143,15 @@ class _Sys:
                 # compliant wall: spring k_s + damper c_s to a massless patch with the friction
                 if shell == 0:
                     Fs, dd = self.ks * y[4] + self.cs * y[3], y[3]
-                else:
+                elif self.cs > 0:
                     L = self.level(y[3], xr) - self.m.drag_Ns_m * abs(y[3])
-                    dd = (shell * L - self.ks * y[4]) / self.cs if self.cs > 0 else 0.0
+                    dd = (shell * L - self.ks * y[4]) / self.cs
                     Fs = shell * L
+                else:
+                    # c_s = 0: k_s d = shell L(0, x_r) throughout; the level at the patch's speed
+                    dd = self.held_patch_rate(shell, xr, vr)
+                    Vp = y[3] - dd
+                    Fs = shell * (self.level(Vp, xr) - self.m.drag_Ns_m * abs(Vp))
                 ac = (F - Fs - self.m.drag_Ns_m * y[3]) / Mc
                 return np.array([y[2], y[3], am, ac, dd])
             if shell == 0:
@@ -155,10 +163,17 @@ class _Sys:
     def patch_force(self, y):
         return self.ks * y[4] + self.cs * y[3]
 
+    def held_patch_rate(self, shell, xr, vr):
+        """d' of a patch sliding on a wall with c_s = 0, where k_s d = shell L(0, x_r) (the level at
+        zero slip speed, tilt-scaled) holds: nonzero only with tilt_friction."""
+        if self.m.tilt_kappa == 0 or self.tilt(xr) <= 0:
+            return 0.0
+        return shell * self._law(0.0) * self.m.tilt_kappa / self.m.gap_m * vr / self.ks
+
     def patch_speed(self, shell, y):
         """Speed of the sliding patch (V_c minus the presliding spring's rate)."""
         if self.cs == 0:
-            return y[3]
+            return y[3] - self.held_patch_rate(shell, y[0] - y[1], y[2] - y[3])
         xr = y[0] - y[1]
         L = self.level(0.0, xr)
         return y[3] - (shell * L - self.ks * y[4]) / self.cs
@@ -177,6 +192,9 @@ class _Sys:
         if abs(F) <= Pb + tol:
             ac = (self.fi(contact, xr, vr) - F - self.m.drag_Ns_m * y[3]) / self.Mc
             Fdot = self.ks * y[3] + self.cs * ac
+            if Pb == 0:  # a zero level (tilt) holds nothing: F's first nonzero derivative decides
+                rate = ac if (self.cs == 0 and abs(y[3]) <= 1e-13 * self.vscale) else Fdot
+                return 0 if rate == 0 else (1 if rate > 0 else -1)
             dPb = self.Pb * self.m.tilt_kappa / self.m.gap_m * vr if Pb > 0 else 0.0
             if sgn * Fdot - dPb <= 0:
                 return 0
@@ -325,7 +343,11 @@ def reference_run(model: CapsuleModel, drive: Drive, friction: Friction, periods
                 elif S.ks > 0 and kind.startswith("break"):
                     new = S.decide_patch(contact, y, fe)
                 elif S.ks > 0 and kind == "slip_end":
-                    new = 0  # the patch stops at the kinetic level (<= breakaway) and sticks
+                    if S.cs == 0:  # k_s d = shell L(0, x_r) is algebraic: drop the integration's drift
+                        y[4] = shell * S.level(0.0, xr) / S.ks
+                    # the patch stops at the kinetic level (<= breakaway) and sticks; at a zero
+                    # level (tilt) nothing holds it
+                    new = S.decide_patch(contact, y, fe) if S.tilt(xr) == 0 else 0
                 elif kind.startswith("break"):
                     new = S.decide(contact, xr, vr, fe)
                 elif kind == "slip_end":

@@ -34,8 +34,10 @@ Choices made here where physics.md leaves them open (tested in tests/test_dynami
   without the effect, compared with it by the verdict. Below a damping ratio
   c_s / (2 sqrt(k_s M_c)) of 1e-6 the engine takes c_s = 0 (``dynamics.model.PATCH_ZETA_MIN``).
   The limit c_s -> 0 is taken exactly: with c_s = 0 the sliding patch keeps
-  k_s d = sgn P_k and, when the breakaway exceeds the kinetic level, jumps there at breakaway with the
-  released spring energy dissipated (counted). c_s > 0 with a speed law is refused (the law would be
+  k_s d = sgn P_k (its level at zero slip speed, with the tilt factor: under ``tilt_friction`` d follows
+  x_r and the patch speed is V_c - d') and, when the breakaway exceeds the kinetic level, jumps there at
+  breakaway with the released spring energy dissipated (counted). Where the tilt level is held at zero
+  the patch cannot stick: the force's first nonzero derivative sends it one way. c_s > 0 with a speed law is refused (the law would be
   implicit in the patch speed). The drag acts on the shell velocity whenever it moves. Stick
   (``stick_fraction``) means the patch is stuck; the shell still moves on the presliding spring.
   Continuation (protocol up/down) restarts the presliding spring relaxed at each condition.
@@ -135,7 +137,8 @@ for _kind in KINDS:
         description="The wall deforms tangentially before the capsule slides: spring k_s and damper c_s between "
                     "the shell and a massless contact patch that carries the set-valued friction (elastic "
                     "presliding in series with Coulomb friction). c_s = 0 is the exact c_s -> 0 limit, "
-                    "taken below a damping ratio c_s / (2 sqrt(k_s M_c)) of 1e-6. "
+                    "taken below a damping ratio c_s / (2 sqrt(k_s M_c)) of 1e-6: the sliding patch keeps "
+                    "k_s d at its level (tilt-scaled with tilt_friction). "
                     "Off: compliance 1/k_s = 0 (rigid wall). " + ADDITIVE,
         source="seed 002 sections 4-5 (intestinal deformation, ~6.8 um under the capsule's weight); "
                "physics.md section 3",
