@@ -33,7 +33,10 @@ DEFAULT_FREQS = (5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0)
 #: runs with dynamics effects: (effect names, parameters) on the one-sided base at the effects' start values
 EFFECT_RUNS = ((("speed_dependent_friction",), {}), (("secondary_constraint",), {}), (("viscous_drag",), {}),
                (("tilt_friction",), {}), (("substrate_compliance",), {}),
-               (("speed_dependent_friction", "viscous_drag", "tilt_friction", "secondary_constraint"), {}))
+               (("speed_dependent_friction", "viscous_drag", "tilt_friction", "secondary_constraint"), {}),
+               (("substrate_compliance", "tilt_friction"), {}),
+               (("speed_dependent_friction", "viscous_drag", "tilt_friction", "secondary_constraint",
+                 "substrate_compliance"), {}))
 
 
 def effect_bench(f_Hz: float = 30.0, amplitude_N: float = 0.15, periods: int = 500, accuracy_periods: int = 5,
