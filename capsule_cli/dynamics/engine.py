@@ -2556,6 +2556,10 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
     Vc = y[2]
     Xc = y[3]
     dsub = y[8]
+    if compliant and sg != 0.0 and p[I_CS] == 0.0 and p[I_KAP] != 0.0:
+        # c_s = 0 under tilt: k_s d = sg L(0, x_r) is algebraic (held_patch_rate); drop the integration's
+        # drift, which at a level held at zero left a force at rounding level for the stick test
+        dsub = sg * friction_level(p, 0.0, xr) / p[I_KS]
     if recording and do_energy:
         energy[E_DRIVE] += y[4]
         energy[E_DAMP] += y[5]
