@@ -311,7 +311,8 @@ def test_substrate_compliance_with_tilt_matches_reference(prm, zeta, f_Hz):
 
 
 @pytest.mark.parametrize("effs, prm, Pd, f_Hz", [
-    (["speed_dependent_friction"], {"Pf_N": 0.15, "a_mN": 2.0, "n": 0.5, "compliance_mm_N": 4.0, "kappa": 0.5}, 0.18, 25.0),
+    (["speed_dependent_friction"], {"Pf_N": 0.15, "a_mN": 2.0, "n": 0.5, "compliance_mm_N": 4.0, "kappa": 0.5},
+     0.18, 25.0),
     (["speed_dependent_friction"], {"Pf_N": 0.005, "a_mN": 6.5, "compliance_mm_N": 0.056, "kappa": -1.05}, 0.33, 28.5),
     (["speed_dependent_friction", "viscous_drag"],
      {"Pf_N": 0.012, "a_mN": 10.4, "n": 0.5, "drag_Ns_m": 0.115, "compliance_mm_N": 2.6, "kappa": -2.0}, 0.24, 13.2),
@@ -335,7 +336,8 @@ def test_a_contact_left_near_the_turning_point_of_a_swing_is_not_missed():
     rises a little, falls below the surface and rises past it again within one scan cell, so neither g nor
     g' changes sign between the cell's ends. The engine misses the second contact (two events fewer than
     the reference; random effect combinations, session 11)."""
-    s = build_system("one_sided", {"Pf_N": 0.0746, "a_mN": 2.3784, "n": 1.0, "gap_back_mm": 0.0577, "drag_Ns_m": 0.0218},
+    s = build_system("one_sided",
+                     {"Pf_N": 0.0746, "a_mN": 2.3784, "n": 1.0, "gap_back_mm": 0.0577, "drag_Ns_m": 0.0218},
                      ["speed_dependent_friction", "secondary_constraint", "viscous_drag"])
     eng, ev, dt = _compare_reference(s, Drive(0.154, 26.01), 4, v_tol=1e-6)
     assert sum(k == "back_contact_on" for _, k in ev) >= 10

@@ -37,9 +37,10 @@ Choices made here where physics.md leaves them open (tested in tests/test_dynami
   k_s d = sgn P_k (its level at zero slip speed, with the tilt factor: under ``tilt_friction`` d follows
   x_r and the patch speed is V_c - d') and, when the breakaway exceeds the kinetic level, jumps there at
   breakaway with the released spring energy dissipated (counted). Where the tilt level is held at zero
-  the patch cannot stick: the force's first nonzero derivative sends it one way. c_s > 0 with a speed law is refused (the law would be
-  implicit in the patch speed). The drag acts on the shell velocity whenever it moves. Stick
-  (``stick_fraction``) means the patch is stuck; the shell still moves on the presliding spring.
+  the patch cannot stick: the force's first nonzero derivative sends it one way. c_s > 0 with a speed
+  law is refused (the law would be implicit in the patch speed). The drag acts on the shell velocity
+  whenever it moves. Stick (``stick_fraction``) means the patch is stuck; the shell still moves on the
+  presliding spring.
   Continuation (protocol up/down) restarts the presliding spring relaxed at each condition.
 * ``secondary_constraint``: on the one-sided base only (the double-sided base has it); start values
   seed 002 Table 2 (97.06 N/mm, 0.35 N s/m) and the assumed G_2 = 0.1 mm of physics.md section 1.
