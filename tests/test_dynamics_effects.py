@@ -326,6 +326,18 @@ def test_speed_law_on_a_compliant_wall_with_tilt_matches_reference(effs, prm, Pd
     _compare_reference(s, Drive(Pd, f_Hz), 4, v_tol=1e-6)
 
 
+def test_a_compliant_patch_stopping_at_a_breakaway_equal_to_its_tilted_level_sticks():
+    """c_s = 0, tilt, P_b = L_0: the patch stops with k_s d at the level, which is the breakaway; the
+    rounding of the slide left the force 1.6e-13 N above it, and the stuck patch's breakaway fired at once,
+    again and again (Zeno at t = 0.0702 s). The stop now takes k_s d = sgn L(0, x_r) exactly. A random
+    model of session 11's second fuzz (its parameters as drawn: rounded, the case does not arise)."""
+    s = build_system("one_sided", {"Pf_N": 0.05340820033768941, "gap_back_mm": 0.20599668977471564,
+                                   "drag_Ns_m": 0.009332060712139335, "compliance_mm_N": 0.1087966961355167,
+                                   "kappa": 1.9371352870345362},
+                     ["secondary_constraint", "viscous_drag", "substrate_compliance", "tilt_friction"])
+    _compare_reference(s, Drive(0.3169858441268365, 33.71652795370272), 4, v_tol=1e-6)
+
+
 @pytest.mark.xfail(strict=True, reason=(
     "known miss (session 11): a scan cell holding both a maximum and a minimum of the contact distance "
     "(neither g nor g' changes sign between its ends) loses the second contact; a fix that checks g'' where "

@@ -2049,6 +2049,10 @@ def shell_transition(p, ev, shell, contact, xr, vr, Vc, dsub, fe_now, pFm, pFc, 
         contact = 0
         kind = K_BACK_OFF
     new_shell = shell
+    if compliant and ev == EV_SLIP_END and p[I_CS] == 0.0 and p[I_KAP] != 0.0:
+        # c_s = 0 under tilt: the patch stops with k_s d at its level exactly (held_patch_rate), not at the
+        # level plus the slide's rounding, which a breakaway equal to the level saw as an exit at once
+        dsub = (1.0 if shell == FAST_POS else -1.0) * friction_level(p, 0.0, xr) / p[I_KS]
     if compliant:
         if ev == EV_BREAK_POS or ev == EV_BREAK_NEG:
             new_shell = decide_patch(p, contact, xr, vr, Vc, dsub, fe_now, pFc)
