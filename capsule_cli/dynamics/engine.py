@@ -136,6 +136,7 @@ EV_NONE = -1
 EV_FRONT_ON, EV_BACK_ON, EV_FRONT_OFF, EV_BACK_OFF = 1, 2, 3, 4
 EV_BREAK_POS, EV_BREAK_NEG, EV_SLIP_END, EV_FAST_ON, EV_FAST_OFF = 5, 6, 7, 8, 9
 EV_TILT = 10  # the tilt factor of the friction level crosses zero (a general linear mode ends)
+TOL_V_REL = 1e-13  # velocity root tolerance and zero test, relative to the velocity scale p[I_VS]
 # recorded kinds (the event list)
 K_FRONT_ON, K_FRONT_OFF, K_BACK_ON, K_BACK_OFF = 1, 2, 3, 4
 K_STICK, K_SLIP_FWD, K_SLIP_BWD, K_DRIVE_ON, K_DRIVE_OFF = 5, 6, 7, 8, 9
@@ -1232,6 +1233,15 @@ def rk_rhs(p, contact, sgn, s, fe_level, y, dy, cont):
 
 
 @kernel
+def held_patch_extension(p, sgn, xr):
+    """Extension d [m] of the presliding spring of a patch sliding in direction sgn on a wall with
+    c_s = 0 (substrate_compliance): k_s d = sgn L(0, x_r), the level at zero slip speed with the tilt
+    factor. Algebraic: the breakaway jumps to it, and a slide's end and the patch's stop take it
+    instead of the integrated d, whose rounding a breakaway equal to the level saw as an exit."""
+    return sgn * friction_level(p, 0.0, xr) / p[I_KS]
+
+
+@kernel
 def held_patch_rate(p, sgn, xr, vr):
     """Rate d' [m/s] of the presliding spring's extension while a patch slides in direction sgn on a
     wall with c_s = 0 (substrate_compliance): the massless patch keeps k_s d = sgn L(0, x_r), its level
@@ -1646,7 +1656,7 @@ def decide_patch(p, contact, xr, vr, Vc, d, fe, Fc):
             # first nonzero derivative takes it (with c_s = 0, F' = k_s V_c and F'' = k_s a_c), and
             # sticks only if that is zero as well
             rate = Fdot
-            if p[I_CS] == 0.0 and abs(Vc) <= 1e-13 * p[I_VS]:
+            if p[I_CS] == 0.0 and abs(Vc) <= TOL_V_REL * p[I_VS]:
                 rate = ac
             if rate == 0.0:
                 return PATCH_STICK
@@ -2052,7 +2062,7 @@ def shell_transition(p, ev, shell, contact, xr, vr, Vc, dsub, fe_now, pFm, pFc, 
     if compliant and ev == EV_SLIP_END and p[I_CS] == 0.0 and p[I_KAP] != 0.0:
         # c_s = 0 under tilt: the patch stops with k_s d at its level exactly (held_patch_rate), not at the
         # level plus the slide's rounding, which a breakaway equal to the level saw as an exit at once
-        dsub = (1.0 if shell == FAST_POS else -1.0) * friction_level(p, 0.0, xr) / p[I_KS]
+        dsub = held_patch_extension(p, 1.0 if shell == FAST_POS else -1.0, xr)
     if compliant:
         if ev == EV_BREAK_POS or ev == EV_BREAK_NEG:
             new_shell = decide_patch(p, contact, xr, vr, Vc, dsub, fe_now, pFc)
@@ -2089,7 +2099,7 @@ def shell_transition(p, ev, shell, contact, xr, vr, Vc, dsub, fe_now, pFm, pFc, 
             if p[I_CS] == 0.0:
                 # c_s = 0: the massless patch jumps to the kinetic balance k_s d = sgn L at once;
                 # the released spring energy is dissipated at the patch
-                dnew = (1.0 if new_shell == FAST_POS else -1.0) * friction_level(p, 0.0, xr) / p[I_KS]
+                dnew = held_patch_extension(p, 1.0 if new_shell == FAST_POS else -1.0, xr)
                 e_fric = 0.5 * p[I_KS] * (dsub * dsub - dnew * dnew)
                 dsub = dnew
         else:  # reversal without sticking
@@ -2563,7 +2573,7 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
     if compliant and sg != 0.0 and p[I_CS] == 0.0 and p[I_KAP] != 0.0:
         # c_s = 0 under tilt: k_s d = sg L(0, x_r) is algebraic (held_patch_rate); drop the integration's
         # drift, which at a level held at zero left a force at rounding level for the stick test
-        dsub = sg * friction_level(p, 0.0, xr) / p[I_KS]
+        dsub = held_patch_extension(p, sg, xr)
     if recording and do_energy:
         energy[E_DRIVE] += y[4]
         energy[E_DAMP] += y[5]
@@ -2616,7 +2626,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     harmonic = p[I_WAVE] < 0.5
     DT = p[I_DUTY] * T
     tol_x = 1e-13 * p[I_XS]
-    tol_v = 1e-13 * p[I_VS]
+    tol_v = TOL_V_REL * p[I_VS]
     tol_F = 1e-13 * p[I_FS]
 
     n_samples = sample_times.shape[0]
