@@ -338,16 +338,12 @@ def test_a_compliant_patch_stopping_at_a_breakaway_equal_to_its_tilted_level_sti
     _compare_reference(s, Drive(0.3169858441268365, 33.71652795370272), 4, v_tol=1e-6)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "known miss (session 11): a scan cell holding both a maximum and a minimum of the contact distance "
-    "(neither g nor g' changes sign between its ends) loses the second contact; a fix that checks g'' where "
-    "g' may vanish twice (docs/dynamics.md, known defects) finds it but cost 18 % of the bench's time per "
-    "period, and is not landed"))
 def test_a_contact_left_near_the_turning_point_of_a_swing_is_not_missed():
     """The back contact is left with a small speed near the turning point of a large swing: g = x_r + G_2
     rises a little, falls below the surface and rises past it again within one scan cell, so neither g nor
-    g' changes sign between the cell's ends. The engine misses the second contact (two events fewer than
-    the reference; random effect combinations, session 11)."""
+    g' changes sign between the cell's ends. The engine missed the second contact (two events fewer than
+    the reference; random effect combinations, session 11). The scan's bound (twin_reach) sends that cell
+    to the search for the rate's extremum (twin_extrema_root)."""
     s = build_system("one_sided",
                      {"Pf_N": 0.0746, "a_mN": 2.3784, "n": 1.0, "gap_back_mm": 0.0577, "drag_Ns_m": 0.0218},
                      ["speed_dependent_friction", "secondary_constraint", "viscous_drag"])

@@ -10,8 +10,11 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 from scipy.optimize import brentq
 
+from capsule_cli.dynamics import engine as E
 from capsule_cli.dynamics import CapsuleModel, Drive, DynamicsError, friction_preset, load_model, simulate
 from capsule_cli.dynamics.reference import reference_run
 from capsule_cli.dynamics.sweep import period_number, run_sweep
@@ -122,6 +125,44 @@ def test_brief_grazing_contact_is_found(one_sided):
     assert abs(on[0] - t_on) < 1e-9
     expected = 2 * (tp - t_on)  # contact time ~ symmetric about the peak (k_1 delta is negligible)
     assert off[0] - on[0] == pytest.approx(expected, rel=0.05)
+
+
+@settings(max_examples=300, deadline=None)
+@given(c=st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4), h=st.floats(0.05, 2.0),
+       kink=st.floats(0.02, 0.98), v_shape=st.booleans())
+def test_twin_reach_bounds_the_minimum_of_a_cell_with_monotone_g2(c, h, kink, v_shape):
+    """twin_reach (the scan's test for a maximum and a minimum of an event function in one cell) is a lower
+    bound of g over the cell wherever g'' is monotone and g' has one sign at both ends and the other inside
+    (without that, g's minimum is at an end). Cubics g = c0 + c1 t + c2 t^2 + c3 t^3 on [0, h], and the
+    extreme case of the bound: g' a V (or a tent), g'_a = c1, g'(kink h) = c2, g'_b = c3, g(0) = c0."""
+    t = np.linspace(0.0, h, 4001)
+    if v_shape:
+        tk = kink * h
+        dg = np.where(t <= tk, c[1] + (c[2] - c[1]) * t / tk, c[2] + (c[3] - c[2]) * (t - tk) / (h - tk))
+        # g exactly: the integral of a piecewise linear g'
+        g1 = c[1] * t + 0.5 * (c[2] - c[1]) * t ** 2 / tk
+        gk = c[1] * tk + 0.5 * (c[2] - c[1]) * tk
+        u = t - tk
+        g2 = gk + c[2] * u + 0.5 * (c[3] - c[2]) * u ** 2 / (h - tk)
+        g = c[0] + np.where(t <= tk, g1, g2)
+    else:
+        g = c[0] + c[1] * t + c[2] * t ** 2 + c[3] * t ** 3
+        dg = c[1] + 2 * c[2] * t + 3 * c[3] * t ** 2
+    assume(dg[0] * dg[-1] > 0.0)
+    reach = E.twin_reach(g[0], g[-1], dg[0], dg[-1], h)
+    if np.any(np.sign(dg) == -np.sign(dg[0])):  # g' vanishes inside: g has a maximum and a minimum there
+        assert reach <= g.min() + 1e-12 * (1 + abs(g).max())
+
+
+def test_twin_reach_is_below_the_surface_for_a_dip_and_silent_without_one():
+    """g' = 1 - 1.55 sin(pi t): g = 0 at t = 0 rises, falls below zero and comes back with g' > 0 at both ends
+    of [0, 1]; with g' = 1 - 0.5 sin(pi t) (g' >= 1/2: D = 1/pi, 2 D / h < min g') the bound is +inf."""
+    for amp, dips in ((1.55, True), (0.5, False)):
+        t = np.linspace(0.0, 1.0, 20001)
+        g = t - amp * (1.0 - np.cos(np.pi * t)) / np.pi
+        assert (g.min() < -1e-3) == dips
+        reach = E.twin_reach(0.0, g[-1], 1.0, 1.0, 1.0)
+        assert (reach < g.min() + 1e-12 if dips else math.isinf(reach)), (amp, reach, g.min())
 
 
 def test_energy_balance_residual_is_tiny(one_sided, double_sided):

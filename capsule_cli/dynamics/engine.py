@@ -1839,8 +1839,73 @@ def seg_event_value(p, contact, sgn, held, vlo, vhi, j, y, t, pq, pfail):
 
 
 @kernel
+def twin_reach(ga, gb, dga, dgb, h):
+    """A lower bound of g over a cell [0, h] [s] where g' has one sign at both ends, from g and g' at the
+    ends, if g'' is monotone across it (the scan's cell is 1/NPER of the fastest period); +inf where g'
+    cannot vanish there. D = h (g'_a + g'_b) / 2 - (g_b - g_a) is the area between g' and its chord.
+    Only g' convex (g' > 0 at both ends, D >= 0) or concave (g' < 0, D <= 0) can vanish twice, and
+    then it reaches at most 2 |D| / h beyond its chord. Convex, g' below zero has at most the area D,
+    so g >= g_a - D; concave, g' lies above its chord, so g >= g_a + h (g'_a + g'_b) / 2."""
+    D = 0.5 * h * (dga + dgb) - (gb - ga)
+    if dga > 0.0 and dgb > 0.0 and 2.0 * D > h * min(dga, dgb):
+        return ga - D
+    if dga < 0.0 and dgb < 0.0 and -2.0 * D > -h * max(dga, dgb):
+        return ga + 0.5 * h * (dga + dgb)
+    return math.inf
+
+
+@kernel
+def twin_extrema_root(base, c, dc, ddc, dddc, negc, negdc, tol, ga, dga, ddgb, ta, tb, s, md, Om, B):
+    """Return the first tau in (ta, tb] just past a crossing of g = c.B below -tol, or -1.
+
+    For a cell where g >= 0 at both ends and g' has one sign at both ends but g may dip below -tol
+    (:func:`twin_reach`): g' vanishes twice inside if g'' changes sign (ddgb: g'' at tb) and g' its
+    sign at the root of g''. g then has a maximum and a minimum (g' > 0 at the ends) or a minimum and
+    a maximum (g' < 0); the minimum is the root of g' on its side of that point, and a crossing below
+    -tol is bracketed from g's maximum (g' > 0) or from ta (g' < 0). dc, ddc: the coefficients of g'
+    and g''; dddc, negc, negdc, B: work space.
+    """
+    rise = dga > 0.0
+    mode_basis(base, ta, s, md, Om, B)
+    ddga = mode_dot(base, ddc, B)
+    # the extremum of g': g'' from - to + (a dip of g') or + to - (a bump)
+    if (rise and not (ddga < 0.0 < ddgb)) or (not rise and not (ddga > 0.0 > ddgb)):
+        return -1.0
+    if base:
+        deriv_base(ddc, md, Om, dddc)
+    else:
+        deriv_coefs(ddc, md, Om, dddc)
+    sg = -1.0 if rise else 1.0
+    for j in range(NB):
+        negc[j] = sg * ddc[j]
+        negdc[j] = sg * dddc[j]
+    m1 = mode_root(base, negc, negdc, ta, tb, s, md, Om, B)
+    mode_basis(base, m1, s, md, Om, B)
+    dgm = mode_dot(base, dc, B)
+    if (rise and dgm >= 0.0) or (not rise and dgm <= 0.0):
+        return -1.0
+    left = ta
+    if rise:
+        # g's maximum: g' from + to - on [ta, m1]; its minimum: g' from - to + on [m1, tb]
+        left = mode_root(base, dc, ddc, ta, m1, s, md, Om, B)
+        lo, hi = m1, tb
+    else:
+        if ga <= tol and ta == 0.0:
+            return -1.0  # a mode starting on the surface and leaving it: decided by the mode's start
+        lo, hi = ta, m1
+    for j in range(NB):
+        negc[j] = -dc[j]
+        negdc[j] = -ddc[j]
+    tmin = mode_root(base, negc, negdc, lo, hi, s, md, Om, B)
+    mode_basis(base, tmin, s, md, Om, B)
+    if mode_dot(base, c, B) >= -tol:
+        return -1.0
+    return mode_root(base, c, dc, left, tmin, s, md, Om, B)
+
+
+@kernel
 def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, tau_end, h, h_slow,
-                 recording, maxF, t_maxF, t_off, B, Bs, ga, dga, negc, negdc, base):
+                 recording, maxF, t_maxF, t_off, B, Bs, ga, dga, negc, negdc, dddc, base):
     """Find the first event of a linear mode within (0, tau_end] and the extrema of F_i before it;
     return (event code or EV_NONE, its time tau, max |F_i|, its global time).
 
@@ -1913,6 +1978,12 @@ def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, 
                 gm = mode_dot(base, evc[e], Bs)
                 if gm < -evtol[e]:
                     r = mode_root(base, evc[e], devc[e], ta, m, s, md, Om, Bs)
+            elif ga[e] >= 0.0 and twin_reach(ga[e], gb, dga[e], dgb, tb - ta) < -evtol[e]:
+                # g' has one sign at both ends but may vanish twice inside (a maximum and a minimum of g
+                # in one cell, as a contact left near the turning point of a swing), and g may then dip
+                # below the surface
+                r = twin_extrema_root(base, evc[e], devc[e], ddevc[e], dddc, negc, negdc, evtol[e], ga[e],
+                                      dga[e], mode_dot(base, ddevc[e], B), ta, tb, s, md, Om, Bs)
             if r >= 0.0 and r < best:
                 best = r
                 best_e = e
@@ -2659,6 +2730,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     Bs = np.zeros(NB)
     ga = np.zeros(6)
     dga = np.zeros(6)
+    dddc = np.zeros(NB)
     # general linear modes: the system and, per mode (contact x slip/patch state x tilt level), its
     # eigen-decomposition, computed once per run
     gA = np.zeros((N_ROWS, N_ROWS))
@@ -2822,7 +2894,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             event_derivatives(ne, lin_gen, md, Om, evc, devc, ddevc, cF, dcF, ddcF)
             ev, tau_ev, maxF, t_maxF = locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om,
                                                     s, tau_end, h, h_slow, recording, maxF, t_maxF, period * T,
-                                                    B, Bs, ga, dga, negc, negdc, not lin_gen)
+                                                    B, Bs, ga, dga, negc, negdc, dddc, not lin_gen)
             xr1, vr1, Xc1, Vc1, d1 = mode_state(tau_ev, s, md, Om, coef, lin_gen, dsub, B)
             if recording:
                 F1 = abs(K * xr1 + Cd * vr1 + F0)
