@@ -351,6 +351,19 @@ def test_a_contact_left_near_the_turning_point_of_a_swing_is_not_missed():
     assert sum(k == "back_contact_on" for _, k in ev) >= 10
 
 
+def test_a_patch_stop_inside_one_adaptive_step_is_not_missed():
+    """A speed law on a tilted compliant wall: the sliding patch's speed V_p falls to zero and the patch sticks
+    for 0.4 ms (t = 60.3 ms) within what was one DOP853 step, whose ends both have V_p > 0. The adaptive
+    path took no slope of its speed and force events and slid on (two events fewer than the reference;
+    random effect combinations, session 12). It now keeps their slopes at the step's ends and looks inside
+    the step where the slope changes sign or twin_reach allows a dip (the parameters as drawn)."""
+    s = build_system("one_sided", {"Pf_N": 0.031212090204705726, "a_mN": 12.579383385649642, "n": 0.5,
+                                   "compliance_mm_N": 0.21123024963623815, "kappa": 0.8896270186752986},
+                     ["speed_dependent_friction", "tilt_friction", "substrate_compliance"])
+    eng, ev, dt = _compare_reference(s, Drive(0.06729950285374219, 34.65917335421378), 4, v_tol=1e-6)
+    assert [k for t, k in ev if 0.0600 < t < 0.0610] == ["stick", "slip_forward"]
+
+
 def test_all_five_effects_together_match_reference():
     """Every built-in dynamics effect at once, compliance with c_s = 0 (a speed law takes no damped patch)."""
     s = _compliant_tilt({"Pf_N": 0.02, "kappa": 0.2, "compliance_mm_N": 0.2},

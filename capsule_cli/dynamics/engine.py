@@ -1709,6 +1709,33 @@ def rk_event_value(p, contact, sgn, vlo, vhi, j, y):
     return -G2 - y[0] if j == 0 else 1.0
 
 
+@kernel
+def rk_event_slope(p, contact, sgn, vlo, vhi, j, y, dy, g, dlt, yd):
+    """The time derivative of :func:`rk_event_value` j at state y with derivative dy, whose value there is g:
+    on a rigid wall +-dV_c/dt, on a compliant one a finite difference over dlt [s] along dy (the event
+    functions are linear in the state, but for the clamp of a tilted level); yd: work space."""
+    if g == 1.0:
+        return 0.0
+    if p[I_KS] == 0.0:  # a rigid wall: +-V_c - const
+        return sgn * dy[2] if j == 2 else -sgn * dy[2]
+    for i in range(NY):
+        yd[i] = y[i] + dlt * dy[i]
+    return (rk_event_value(p, contact, sgn, vlo, vhi, j, yd) - g) / dlt
+
+
+@kernel
+def rk_dense_dip(p, contact, sgn, vlo, vhi, j, rc, tol, yd):
+    """The first of 64 points of a step's dense output (rc) where event j is below -tol, as a fraction of the
+    step (its crossing is then bracketed from the step's start), or -1 if none: the step's event
+    function had a minimum inside (:func:`adaptive_segment`)."""
+    for q in range(1, 65):
+        th = q / 64.0
+        dense_eval(rc, th, yd)
+        if rk_event_value(p, contact, sgn, vlo, vhi, j, yd) < -tol:
+            return th
+    return -1.0
+
+
 # ---------------------------------------------------------------------------
 # user plugin forces (issue 9 item 4; capsule_cli.dynamics.plugin_force compiles them)
 #
@@ -2380,7 +2407,7 @@ def mode_samples(coef, md, Om, s, tau_ev, sample_times, j_sample, t_shift, rec_t
 @kernel
 def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr, Xc, Vc, dsub,
                      rtol, max_steps, recording, do_energy, maxF, t_maxF, sample_times, n_transient, samples,
-                     j_sample, rec_t0, seg_stick, plug, pq, pfail, energy, y, y1, yt, k1, k7, rc, KD, yd):
+                     j_sample, rec_t0, seg_stick, plug, pq, pfail, energy, y, y1, yt, k1, k7, rc, KD, yd, gab):
     """Advance one mode on the adaptive path (DOP853 with dense output, tolerance ``rtol``) from phase
     ``s`` [s] for at most ``tau_end`` [s], or to its first event: a speed-dependent law above V_min
     (seed 000 eqs 22-23, physics.md section 3), a nearly defective general mode, or any mode with a
@@ -2458,6 +2485,14 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
     rk_h_old = 1.0
     Fa = K * y[0] + Cd * y[1] + F0
     dFa = K * k1[0] + Cd * k1[1]
+    # the speed and force events (j = 2, 3): values and slopes at the step's start (gab[j - 2], gab[j]) and
+    # end (gab[j + 2], gab[j + 4]), for the minima inside a step (a slip that slows to zero and speeds up
+    # again, a patch force that touches its level); kept in an array, off the loop's registers
+    for j in range(2, 4 if compliant else 2):
+        gab[j - 2] = rk_event_value(p, contact, sg, vlo, vhi, j, y)
+        gab[j] = rk_event_slope(p, contact, sg, vlo, vhi, j, y, k1, gab[j - 2], 1e-6 * hmax, yd)
+        gab[j + 2] = gab[j - 2]
+        gab[j + 4] = gab[j]
     while True:
         nsteps += 1
         if nsteps > max_steps:
@@ -2515,6 +2550,22 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
                     dense_eval(rc, 0.5 * (a_ + b_), yd)
                     if rk_event_value(p, contact, sg, vlo, vhi, j, yd) < -tol_x:
                         hi = 0.5 * (a_ + b_)
+            elif compliant and j >= 2 and g1 != 1.0 and not plug:
+                # a minimum of a speed or force event inside the step: the slope at the step's ends from the
+                # stages (finite difference along y'); one minimum (slope - to +) or, where twin_reach allows
+                # it, a maximum and a minimum (slope of one sign at both ends)
+                ga_ = gab[j - 2]
+                dga_ = gab[j]
+                dgb_ = rk_event_slope(p, contact, sg, vlo, vhi, j, y1, k7, g1, 1e-6 * hmax, yd)
+                gab[j + 2] = g1
+                gab[j + 4] = dgb_
+                tol_j = TOL_V_REL * (p[I_FS] if (compliant and sg == 0.0) else p[I_VS])
+                if (dga_ < 0.0 < dgb_) or (ga_ >= 0.0 and twin_reach(ga_, g1, dga_, dgb_, hh) < -tol_j):
+                    if not rc_ok:
+                        dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail,
+                                     full, cont)
+                        rc_ok = True
+                    hi = rk_dense_dip(p, contact, sg, vlo, vhi, j, rc, tol_j, yd)
             if hi > 0.0:
                 if not rc_ok:
                     dop853_dense(p, contact, sg, sa, hh, fe_level, y, y1, KD, yt, rc, plug, held, t0, pq, pfail,
@@ -2626,6 +2677,9 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
         for i in range(NY):
             y[i] = y1[i]
             k1[i] = k7[i]
+        if compliant:
+            for j in range(4):
+                gab[j] = gab[j + 4]
         if tau >= tau_end:
             break
         fac = rk_step_factor(err, rk_rej, rk_err_old, hh / rk_h_old)
@@ -2762,6 +2816,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     rc = np.zeros((8, NY))
     KD = np.zeros((DOP_NK, NY))
     yd = np.zeros(NY)
+    gab = np.zeros(8)
     # user plugin force: the row's plugin slots (a contiguous copy the plugin reads through a pointer)
     # and the failure latch
     plug = p[I_PLUG] > 0.5
@@ -2920,7 +2975,7 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             status, status_t, ev, tau_ev, xr, vr, Xc, Vc, dsub, maxF, t_maxF, j_sample = adaptive_segment(
                 p, contact, shell, s, tau_end, fe_level, period, T, xr, vr, Xc, Vc, dsub, rtol, max_steps,
                 recording, do_energy, maxF, t_maxF, sample_times, n_transient, samples, j_sample, rec_t0,
-                seg_stick, plug, pq, pfail, energy, y, y1, yt, k1, k7, rc, KD, yd)
+                seg_stick, plug, pq, pfail, energy, y, y1, yt, k1, k7, rc, KD, yd, gab)
             if status != STATUS_OK:
                 break
 
