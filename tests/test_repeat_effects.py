@@ -72,10 +72,12 @@ def test_third_arm_step_by_step_until_the_error_falls_to_noise(tmp_path):
     rmse_truth = float(np.sqrt(np.mean((d["pressure_kPa"].to_numpy() - truth) ** 2)))
     assert met2["rmse"] <= 1.05 * rmse_truth, (met2["rmse"], rmse_truth)
     assert met2["cv_rmse"] <= 1.4 * sd and met2["cv_rmse"] < met["cv_rmse"], (met2["cv_rmse"], met["cv_rmse"])
-    # the added arms find the fast time constant (2 s) and one between it and the base arm's (three
-    # exponentials 2, 8 and 27 s apart trade the slower two against each other at this noise)
+    # the three arms find the fast time constant (2 s) and two well apart above it (three exponentials
+    # 2, 8 and 27 s apart trade the slower two against each other at this noise). Which arm holds which
+    # time constant is a labelling the data cannot fix: the base arm took the 2 s one on one machine and
+    # the 27 s one on another, with the same error; only the set of the three is compared.
     vals = {s.key: s.value for s in m2.specs}
-    taus = sorted(vals[f"arm_eta{s}_MPa_s"] / vals[f"arm_E{s}_kPa"] * 1e3 for s in ("", "_2"))
-    base_tau = vals["eta1_MPa_s"] / vals["E1_kPa"] * 1e3
-    assert taus[0] == pytest.approx(2.0, rel=0.15)
-    assert 2 * taus[0] < taus[1] < base_tau, (taus, base_tau)
+    taus = sorted([vals[f"arm_eta{s}_MPa_s"] / vals[f"arm_E{s}_kPa"] * 1e3 for s in ("", "_2")]
+                  + [vals["eta1_MPa_s"] / vals["E1_kPa"] * 1e3])
+    assert taus[0] == pytest.approx(2.0, rel=0.15), taus
+    assert 2 * taus[0] < taus[1] < taus[2], taus
