@@ -120,6 +120,24 @@ def test_magnify_writes_table_and_figure(tmp_path):
     assert fig.stat().st_size > 5000
 
 
+def test_magnify_without_a_friction_takes_the_model_files_level(tmp_path):
+    """simulate and sweep take the model's P_f when no --Pf-N is given; so does magnify (it took Fig 19's
+    0.007 N whatever the model file said). Same model file, same point: A_f equals simulate's."""
+    mf = tmp_path / "m.yaml"
+    mf.write_text("kind: progression\nbase: one_sided\neffects: [viscous_drag]\n"
+                  "params:\n  Pf_N: {value: 0.02}\n  drag_Ns_m: 0.05\n")
+    out = tmp_path / "mag.parquet"
+    assert main(["magnify", "--model", str(mf), "--out", str(out), "--Pd-start-N", "0.15", "--Pd-num", "1",
+                 "--f-start-Hz", "30", "--f-num", "1", "--transient-periods", "0", "--periods", "5",
+                 "--settle-tol", "0", "--quiet"]) == 0
+    df = read_table(out)
+    assert list(df["Pf_N"]) == [0.02]
+    assert main(["simulate", "--model", str(mf), "--out", str(tmp_path / "s"), "--Pd-N", "0.15", "--f-Hz", "30",
+                 "--periods", "5", "--quiet"]) == 0
+    s = json.loads((tmp_path / "s" / "summary.json").read_text())
+    assert df["Af"].iloc[0] == pytest.approx(s["Af"], rel=1e-12)
+
+
 def test_contract_dynamics_model_file_runs_as_written(tmp_path):
     """contract section 4: the progression model file is accepted as written; it is the seed 000
     Table 2 model with P_f = 7.8 mN, so it must reproduce the parameter-set run exactly."""

@@ -214,7 +214,7 @@ def register(app: typer.Typer) -> None:
         f_stop_Hz: float = typer.Option(40.0, "--f-stop-Hz", help="last frequency [Hz]"),
         f_num: int = typer.Option(36, "--f-num", help="number of frequencies [-]"),
         Pf_N: Optional[List[float]] = typer.Option(None, "--Pf-N", help="Coulomb level(s) [N]; 'inf' = shell fixed; "
-                                                   "repeatable (default 0.007 when no --law / --fig19)"),
+                                                   "repeatable (default: the model's Pf_N when no --law / --fig19)"),
         law: Optional[List[str]] = typer.Option(None, "--law", help="speed-law friction eq22 or eq23 (seed 000, "
                                                 "well-posed form); repeatable"),
         fig19: bool = typer.Option(False, "--fig19", help="the eight frictions of seed 000 Fig 19 "
@@ -260,8 +260,10 @@ def register(app: typer.Typer) -> None:
             if fig19:
                 frictions += list(load_fig19()["frictions"])
             frictions += [str(x) for x in (Pf_N or [])] + list(law or [])
+            m, pf_set = resolve_model(model, _parse_set(set_))
             if not frictions:
-                frictions = ["0.007"]
+                # the model's own P_f, as simulate and sweep take it (Fig 19's lowest level without one)
+                frictions = [str(pf_set if pf_set is not None else load_fig19()["frictions"][0])]
             if Pd_num < 1 or f_num < 1:
                 raise InputError("--Pd-num and --f-num must be >= 1")
             _load_plugins(plugins)
@@ -270,7 +272,6 @@ def register(app: typer.Typer) -> None:
             if not (math.isfinite(rk_rtol) and 1e-14 <= rk_rtol <= 1e-4):
                 raise InputError(f"--rk-rtol {rk_rtol:g}: expected a tolerance in [1e-14, 1e-4]")
             settle_tol = _settle_tol(settle_tol)
-            m, _ = resolve_model(model, _parse_set(set_))
             Pd = np.linspace(Pd_start_N, Pd_stop_N, Pd_num)
             f = np.linspace(f_start_Hz, f_stop_Hz, f_num)
             rows = None
