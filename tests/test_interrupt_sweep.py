@@ -16,8 +16,9 @@ pytestmark = pytest.mark.xdist_group("dynamics")
 def _start(out: Path):
     exe = Path(sys.executable).with_name("capsule-cli")
     cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "capsule_cli"]
-    # about a minute of work on a quiet 2-core machine: it cannot finish before the signal
-    args = ["sweep", "--out", str(out), "--start", "5", "--stop", "40", "--num", "6000", "--quiet"]
+    # 30-60 s of work on a quiet 2-core machine (6000 points took 3.6 s in session 12, less than the wait
+    # before the signal): it cannot finish before the signal
+    args = ["sweep", "--out", str(out), "--start", "5", "--stop", "40", "--num", "60000", "--quiet"]
     return subprocess.Popen([*cmd, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONPATH": str(REPO)})
 

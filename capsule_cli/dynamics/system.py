@@ -26,6 +26,7 @@ from ..errors import InputError
 from . import engine as E
 from .model import (BASE_PARAM_SETS, MODEL_PARAM_NAMES, STEADY_SETTLE_TOL, CapsuleModel, Drive, EngineOptions,
                     Friction, friction_preset, pack_params)
+from .parallel import run_many
 from .run import check_status
 from .sweep import period_number
 
@@ -288,7 +289,7 @@ def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmo
         states0 = np.zeros((n, 4))
         if start_offset_m is not None:
             states0[:, 0] = np.broadcast_to(np.asarray(start_offset_m, float), (n,))
-        st, per, _, _ = E.run_many(P, opts, states0, ntr, nrec)
+        st, per, _, _ = run_many(P, opts, states0, ntr, nrec)
         for i in range(n):
             check_status(int(st[i]), float("nan"), fr, f"condition f = {f[i]:g} Hz, Pd = {Pd[i]:g} N",
                          system.model.plugin_forces)
