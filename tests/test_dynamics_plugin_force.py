@@ -13,6 +13,7 @@ import textwrap
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import yaml
 
@@ -278,6 +279,11 @@ def test_cli_simulate_and_sweep_with_a_plugin_force(plugin, tmp_path):
     w = _cli("sweep", "--model", "m.yaml", "--plugins", str(plugin), "--out", "sw", "--param", "f_Hz", "--start",
              "25", "--stop", "30", "--num", "2", "--transient-periods", "5", "--periods", "5", "-q", cwd=tmp_path)
     assert w.returncode == 0, w.stderr
+    # magnify loads the plugins before it reads the model file, and takes the file's P_f
+    g = _cli("magnify", "--model", "m.yaml", "--plugins", str(plugin), "--out", "mg.parquet", "--Pd-num", "1",
+             "--f-start-Hz", "30", "--f-num", "1", "--transient-periods", "5", "--periods", "3", "-q", cwd=tmp_path)
+    assert g.returncode == 0, g.stderr
+    assert list(pd.read_parquet(tmp_path / "mg.parquet")["Pf_N"]) == [0.0078]
     # without --plugins the effect is unknown: one line, exit 2
     n = _cli("simulate", "--model", "m.yaml", "--out", "sim2", "--periods", "2", "-q", cwd=tmp_path)
     assert n.returncode == 2 and n.stderr.count("\n") == 1 and "extra_spring_t9f" in n.stderr

@@ -260,13 +260,13 @@ def register(app: typer.Typer) -> None:
             if fig19:
                 frictions += list(load_fig19()["frictions"])
             frictions += [str(x) for x in (Pf_N or [])] + list(law or [])
+            _load_plugins(plugins)  # before the model: a model file may list a plugin's effect
             m, pf_set = resolve_model(model, _parse_set(set_))
             if not frictions:
                 # the model's own P_f, as simulate and sweep take it (Fig 19's lowest level without one)
                 frictions = [str(pf_set if pf_set is not None else load_fig19()["frictions"][0])]
             if Pd_num < 1 or f_num < 1:
                 raise InputError("--Pd-num and --f-num must be >= 1")
-            _load_plugins(plugins)
             if rk_rtol is None:
                 rk_rtol = map_rk_rtol()
             if not (math.isfinite(rk_rtol) and 1e-14 <= rk_rtol <= 1e-4):
