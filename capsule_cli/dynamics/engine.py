@@ -1077,14 +1077,23 @@ def refine_root(c, dc, a, b, s0, md, Om, B):
         if dg != 0.0:
             xn = x - g / dg
             step = abs(xn - x)
-            if step < tolx and g >= 0.0:
-                # close the bracket from the inside: test a point just past the root
-                xo = x + 2.0 * tolx
-                if xo < b:
-                    basis(xo, s0, md, Om, B)
-                    if dot9(c, B) < 0.0:
-                        b = xo
-                        break
+            if step < tolx:
+                # close the bracket from the side Newton came from: test a point just across the root
+                # (from outside, g < 0, the bracket used to shrink by bisection alone: 20-50 evaluations
+                # instead of 6-8 in one call of seven)
+                if g >= 0.0:
+                    xo = x + 2.0 * tolx
+                    if xo < b:
+                        basis(xo, s0, md, Om, B)
+                        if dot9(c, B) < 0.0:
+                            b = xo
+                            break
+                else:
+                    xo = x - 2.0 * tolx
+                    if xo > a:
+                        basis(xo, s0, md, Om, B)
+                        if dot9(c, B) >= 0.0:
+                            break
             if not (a < xn < b):
                 xn = 0.5 * (a + b)
         else:
@@ -1128,14 +1137,23 @@ def refine_root_base(c, dc, a, b, s0, md, Om, B):
         if dg != 0.0:
             xn = x - g / dg
             step = abs(xn - x)
-            if step < tolx and g >= 0.0:
-                # close the bracket from the inside: test a point just past the root
-                xo = x + 2.0 * tolx
-                if xo < b:
-                    basis_base(xo, s0, md, Om, B)
-                    if dot_base(c, B) < 0.0:
-                        b = xo
-                        break
+            if step < tolx:
+                # close the bracket from the side Newton came from: test a point just across the root
+                # (from outside, g < 0, the bracket used to shrink by bisection alone: 20-50 evaluations
+                # instead of 6-8 in one call of seven)
+                if g >= 0.0:
+                    xo = x + 2.0 * tolx
+                    if xo < b:
+                        basis_base(xo, s0, md, Om, B)
+                        if dot_base(c, B) < 0.0:
+                            b = xo
+                            break
+                else:
+                    xo = x - 2.0 * tolx
+                    if xo > a:
+                        basis_base(xo, s0, md, Om, B)
+                        if dot_base(c, B) >= 0.0:
+                            break
             if not (a < xn < b):
                 xn = 0.5 * (a + b)
         else:
