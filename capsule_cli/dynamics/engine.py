@@ -1877,6 +1877,15 @@ def seg_event_value(p, contact, sgn, held, vlo, vhi, j, y, t, pq, pfail):
 
 
 @kernel
+def signed_rows(sg, c, dc, out_c, out_dc):
+    """out_c, out_dc = sg c, sg dc: the rows of -g and -g' (sg = -1) for a root search that needs
+    g(a) >= 0 > g(b) (:func:`refine_root`)."""
+    for j in range(NB):
+        out_c[j] = sg * c[j]
+        out_dc[j] = sg * dc[j]
+
+
+@kernel
 def twin_reach(ga, gb, dga, dgb, h):
     """A lower bound of g over a cell [0, h] [s] where g' has one sign at both ends, from g and g' at the
     ends, if g'' is monotone across it (the scan's cell is 1/NPER of the fastest period); +inf where g'
@@ -1913,10 +1922,7 @@ def twin_extrema_root(base, c, dc, ddc, dddc, negc, negdc, tol, ga, dga, ddgb, t
         deriv_base(ddc, md, Om, dddc)
     else:
         deriv_coefs(ddc, md, Om, dddc)
-    sg = -1.0 if rise else 1.0
-    for j in range(NB):
-        negc[j] = sg * ddc[j]
-        negdc[j] = sg * dddc[j]
+    signed_rows(-1.0 if rise else 1.0, ddc, dddc, negc, negdc)
     m1 = mode_root(base, negc, negdc, ta, tb, s, md, Om, B)
     mode_basis(base, m1, s, md, Om, B)
     dgm = mode_dot(base, dc, B)
@@ -1931,9 +1937,7 @@ def twin_extrema_root(base, c, dc, ddc, dddc, negc, negdc, tol, ga, dga, ddgb, t
         if ga <= tol and ta == 0.0:
             return -1.0  # a mode starting on the surface and leaving it: decided by the mode's start
         lo, hi = ta, m1
-    for j in range(NB):
-        negc[j] = -dc[j]
-        negdc[j] = -ddc[j]
+    signed_rows(-1.0, dc, ddc, negc, negdc)
     tmin = mode_root(base, negc, negdc, lo, hi, s, md, Om, B)
     mode_basis(base, tmin, s, md, Om, B)
     if mode_dot(base, c, B) >= -tol:
@@ -1997,9 +2001,7 @@ def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, 
                 # an interior minimum of g (grazing). A mode that starts with g' ~ 0 (a slip
                 # from a friction threshold: V_c' = 0) has g' of either sign at rounding
                 # level at ta: probe geometrically for the first point where g' < 0.
-                for j in range(NB):
-                    negc[j] = -devc[e, j]
-                    negdc[j] = -ddevc[e, j]
+                signed_rows(-1.0, devc[e], ddevc[e], negc, negdc)
                 t0m = ta
                 if dga[e] >= 0.0:
                     t0m = -1.0
@@ -2041,9 +2043,7 @@ def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, 
                 if dFa > 0.0:
                     m = mode_root(base, dcF, ddcF, ta, tb, s, md, Om, Bs)
                 else:
-                    for j in range(NB):
-                        negc[j] = -dcF[j]
-                        negdc[j] = -ddcF[j]
+                    signed_rows(-1.0, dcF, ddcF, negc, negdc)
                     m = mode_root(base, negc, negdc, ta, tb, s, md, Om, Bs)
                 if m <= t_stop:
                     mode_basis(base, m, s, md, Om, Bs)
