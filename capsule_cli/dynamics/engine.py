@@ -31,6 +31,19 @@ basis with a linear map of the coefficients, so events, their extrema (grazing)
 and extrema of F_i are located by bracketing on a grid of 1/NPER of the fastest
 modal period plus Newton-bisection to ~1e-16 s on the exact expressions.
 
+Where the time goes, and what keeps it small (the bench's runs: about 4 segments, 36 scan cells and
+7 root searches per excitation period):
+* the scan moves from cell to cell by the exact 2 x 2 maps of each modal pair and of the drive's
+  cos, sin over one cell (:func:`basis_factors`, :func:`basis_advance`: e^{lambda h} products, no
+  transcendental function), evaluating the basis afresh every SCAN_ANCHOR cells and at a segment's
+  end; at a segment's start only the drive's phase needs cos, sin (:func:`basis_start`);
+* a root search starts from the cubic Hermite interpolant of g, g' at the cell's ends, which the
+  scan has (:func:`hermite_guess`): one fresh basis evaluation, then Newton iterates 1e-5 to 1e-12
+  of a cell apart, each advanced from the last by short Taylor series (:func:`basis_step`); the
+  basis at the root is handed back for the segment's end state (:func:`mode_state`);
+* libm's sincos and exp were 45 % of the engine's time before this (session 13): 90 basis
+  evaluations per period, now about 17.
+
 Dynamics effects that keep the modes linear (viscous drag c_v V_c, the tilt level
 L0 (1 + kappa x_r / G_1), substrate compliance: a presliding spring k_s and damper c_s
 to a massless contact patch) make *general linear modes*: ``u' = A u + b0 + bc cos(Om s)``
@@ -52,16 +65,18 @@ drive and the Poincare section at phase 0 are exact for any run length.
 
 Kernels (each compiled, one job)
 --------------------------------
-* :func:`run_core_at`: the driver. Per segment it picks the mode (contact x shell state x
-  effects), runs it to its first event or the segment's end, applies the transition and
-  keeps the period's bookkeeping.
+* :func:`run_core_at` / :func:`run_segments`: the driver. Per segment it picks the mode (contact x
+  shell state x effects), runs it to its first event or the segment's end, applies the transition
+  and keeps the period's bookkeeping. The event list is never grown in place (an array variable
+  rebound inside the loop cost an atomic reference-count pair per segment, 8 % of the bench): a run
+  that fills it is repeated with four times the room.
 * exact segments, one kernel per job: :func:`mode_path` (which path a shell state takes: base
   closed form, general linear mode, or adaptive), :func:`setup_linear` / :func:`setup_general`
   (the closed forms), :func:`mode_events` (the mode's event functions on its basis) and
   :func:`event_derivatives` (their time derivatives), the event scan :func:`locate_event` with
-  :func:`refine_root` (on the seven-function basis for a base mode), :func:`mode_state` (the end
-  state), :func:`mode_samples` (trajectory samples) and :func:`gl_energy` / :func:`gl_friction`
-  (the energy balance). Kernels are compiled without reference counting (``kernel``), so a call
+  :func:`mode_root_ends` / :func:`refine_from` (on the seven-function basis for a base mode),
+  :func:`mode_state` (the end state), :func:`mode_samples` (trajectory samples) and :func:`gl_energy` /
+  :func:`gl_friction` (the energy balance). Kernels are compiled without reference counting (``kernel``), so a call
   costs little: split this way the bench's period took 1-4 % longer (6.11-6.34 against 6.30-6.46
   us, alternated; session 10), where one kernel taking some 45 arrays had cost 8.3-8.7 against 5.9
   (session 9) and numba's IR-level inlining (``inline='always'``) 7.2-7.8.
@@ -146,6 +161,9 @@ EVENT_KIND_NAMES = {1: "front_contact_on", 2: "front_contact_off", 3: "back_cont
 
 STATUS_OK, STATUS_ZENO, STATUS_ILLPOSED, STATUS_RKFAIL, STATUS_EVCAP = 0, 1, 2, 3, 4
 STATUS_PLUGIN = 5  # a user plugin force raised or returned a non-finite value
+STATUS_EVGROW = 6  # internal (run_segments): the event list is full; run_core_at repeats the run with more room
+# the event list of a run that records all its events (run_core_at, ev_cap < 0): its first capacity
+EV_CAP_START, EV_CAP_PER_PERIOD, EV_CAP_FIRST_MAX = 64, 16, 1 << 16
 
 # sample columns
 S_T, S_XM, S_XC, S_VM, S_VC, S_XR, S_CONTACT, S_STICK, S_FI = range(9)
@@ -162,6 +180,12 @@ N_ENERGY = 7
 NB = 9
 B_M1, B_COS, B_SIN, B_ONE, B_T, B_T2, B_M2 = 0, 2, 3, 4, 5, 6, 7
 MODE_OSC, MODE_REAL, MODE_NONE = 0, 1, 2
+# the scan advances the basis cell to cell by exact maps (basis_advance) and evaluates it afresh every
+# SCAN_ANCHOR cells, so that rounding (about an ulp per step) stays within a few ulp
+SCAN_ANCHOR = 16
+# |argument| [rad] up to which a Newton step's exp, sin and cos are taken from short Taylor series
+# (tiny_step_factors: truncation below 1e-19 there)
+TINY_ARG = 2e-3
 # coefficient rows of a linear mode's state
 R_XR, R_VR, R_XC, R_VC, R_D = 0, 1, 2, 3, 4
 N_ROWS = 5
@@ -388,6 +412,33 @@ def basis(tau, s0, md, Om, B):
     else:
         B[7] = 0.0
         B[8] = 0.0
+
+
+@kernel
+def basis_start(base, s0, md, Om, B):
+    """:func:`basis` (or :func:`basis_base`) at tau = 0, where only the drive's phase needs cos and sin: the
+    same values, without exp and the mode's cos, sin."""
+    for i in range(2):
+        k = 4 * i
+        j = 0 if i == 0 else 7
+        if i == 1 and base:
+            break
+        kind = md[k]
+        B[j] = 0.0 if kind == MODE_NONE else 1.0
+        B[j + 1] = 1.0 if kind == MODE_REAL else 0.0
+    ph = Om * s0
+    B[2] = math.cos(ph)
+    B[3] = math.sin(ph)
+    B[4] = 1.0
+    B[5] = 0.0
+    B[6] = 0.0
+
+
+@kernel
+def copy_basis(src, dst):
+    """dst[:NB] = src[:NB] (a kernel cannot assign slices: that needs numba's reference counting)."""
+    for j in range(NB):
+        dst[j] = src[j]
 
 
 @kernel
@@ -1046,107 +1097,129 @@ def gl_friction(p, coef, md, Om, s0, tau1, h, h_slow, gm, sg, tilt_on, dd, B, ac
 
 
 @kernel
-def bracket_across(base, c, x, g, tolx, a, b, s0, md, Om, B):
+def tiny_pair(a, w, d, b0, b1):
+    """A modal pair (e^{a t} cos w t, e^{a t} sin(w t) / w) at t + d [s] from its values b0, b1 at t, for a
+    tiny step (|a d|, |w d| <= TINY_ARG): exp, sin and cos from short Taylor series (truncation below 1e-19)."""
+    ad = a * d
+    e = 1.0 + ad * (1.0 + ad * (0.5 + ad * (1.0 / 6.0 + ad * (1.0 / 24.0 + ad * (1.0 / 120.0)))))
+    z = (w * d) * (w * d)
+    Sw = d * (1.0 - z * (1.0 / 6.0 - z * (1.0 / 120.0)))  # sin(w d) / w
+    C = 1.0 - z * (0.5 - z * (1.0 / 24.0 - z * (1.0 / 720.0)))
+    return e * (C * b0 - Sw * w * w * b1), e * (Sw * b0 + C * b1)
+
+
+@kernel
+def tiny_ok(kind, a, disc, w, d):
+    """True if a modal slot (md's kind, a, disc, w) can take the step d [s] by :func:`tiny_pair`."""
+    return kind == MODE_OSC and disc < 0.0 and abs(a * d) <= TINY_ARG and abs(w * d) <= TINY_ARG
+
+
+@kernel
+def basis_step(base, x, xb, Bx, s0, md, Om, chain, B):
+    """B = the basis at x [s], given Bx, the basis at xb: advanced from Bx over the tiny step d = x - xb
+    (a Newton step near a root moves by 1e-5 to 1e-12 of the scan cell) if chain and every argument is at
+    most TINY_ARG: short Taylor series of exp, sin and cos instead of libm's exp and two sincos, which were
+    45 % of the engine's time; each step adds an ulp or two of rounding. Else evaluated afresh. B must
+    not be Bx."""
+    d = x - xb
+    if chain and abs(Om * d) <= TINY_ARG and tiny_ok(md[0], md[1], md[2], md[3], d) and (
+            base or md[4] == MODE_NONE or tiny_ok(md[4], md[5], md[6], md[7], d)):
+        B[0], B[1] = tiny_pair(md[1], md[3], d, Bx[0], Bx[1])
+        B[2], B[3] = tiny_pair(0.0, 1.0, Om * d, Bx[2], Bx[3])
+        B[4] = 1.0
+        B[5] = x
+        B[6] = x * x
+        if not base:
+            if md[4] == MODE_NONE:
+                B[7] = 0.0
+                B[8] = 0.0
+            else:
+                B[7], B[8] = tiny_pair(md[5], md[7], d, Bx[7], Bx[8])
+    else:
+        mode_basis(base, x, s0, md, Om, B)
+
+
+@kernel
+def bracket_across(base, c, x, g, tolx, a, b, s0, md, Om, Bx, chain, B):
     """Close a Newton bracket [a, b] of g = c.B at its iterate x (g = g(x), the next step below tolx [s]) from
     the side Newton converged on: test a point 2 tolx across the root. Return (a, b, closed). (Closed from
     inside only, a call converging from outside, g < 0, shrank its bracket by bisection alone: 20-50 basis
-    evaluations instead of 6-8 in one call of seven.)"""
+    evaluations instead of 6-8 in one call of seven.) Bx: the basis at x; B: work space (:func:`basis_step`)."""
     if g >= 0.0:
         xo = x + 2.0 * tolx
         if xo < b:
-            mode_basis(base, xo, s0, md, Om, B)
+            basis_step(base, xo, x, Bx, s0, md, Om, chain, B)
             if mode_dot(base, c, B) < 0.0:
                 return a, xo, True
     else:
         xo = x - 2.0 * tolx
         if xo > a:
-            mode_basis(base, xo, s0, md, Om, B)
+            basis_step(base, xo, x, Bx, s0, md, Om, chain, B)
             if mode_dot(base, c, B) >= 0.0:
                 return xo, b, True
     return a, b, False
 
 
 @kernel
-def refine_root(c, dc, a, b, s0, md, Om, B):
-    """Return the first tau in (a, b] just past the root of g = c.B, given g(a) >= 0 > g(b).
-
-    Safeguarded Newton-bisection on the closed form; the returned point lies on the
-    'outside' (g < 0) side within a few ulp of the root.
-    """
-    basis(a, s0, md, Om, B)
-    ga = dot9(c, B)
-    if ga < 0.0:
-        return a
-    basis(b, s0, md, Om, B)
-    gb = dot9(c, B)
-    x = b
-    if gb != ga:
-        x = a + (b - a) * ga / (ga - gb)
+def hermite_guess(a, b, ga, gb, dga, dgb):
+    """First guess [s] of a root of g in (a, b), given g(a) >= 0 > g(b) and g' at both ends. Where g is
+    monotone on the cell (g' < 0 at both ends) the inverse cubic Hermite interpolant x(g) at g = 0 (error
+    O(h^4) against the secant's O(h^2)); else the secant point. Arithmetic only: no basis evaluation."""
+    x = a + (b - a) * ga / (ga - gb)
+    if dga < 0.0 and dgb < 0.0:
+        # x(g) on [gb, ga]: x(ga) = a, x(gb) = b, x'(g) = 1 / g'
+        dg = ga - gb
+        u = ga / dg  # the fraction of the way from g = ga to g = 0
+        m0 = -dg / dga
+        m1 = -dg / dgb
+        h10 = u * (1.0 - u) * (1.0 - u)
+        h01 = u * u * (3.0 - 2.0 * u)
+        h11 = u * u * (u - 1.0)
+        x = a + h10 * m0 + h01 * (b - a) + h11 * m1
     if not (a < x < b):
         x = 0.5 * (a + b)
-    for _ in range(100):
-        tolx = 4.0 * EPS * (abs(s0) + abs(b)) + 1e-300
-        if b - a <= tolx:
-            break
-        basis(x, s0, md, Om, B)
-        g = dot9(c, B)
-        dg = dot9(dc, B)
-        if g >= 0.0:
-            a = x
-        else:
-            b = x
-        if dg != 0.0:
-            xn = x - g / dg
-            step = abs(xn - x)
-            if step < tolx:
-                a, b, closed = bracket_across(False, c, x, g, tolx, a, b, s0, md, Om, B)
-                if closed:
-                    break
-            if not (a < xn < b):
-                xn = 0.5 * (a + b)
-        else:
-            xn = 0.5 * (a + b)
-        x = xn
-    return b
-
+    return x
 
 
 @kernel
-def refine_root_base(c, dc, a, b, s0, md, Om, B):
-    """:func:`refine_root` on the seven-function basis of a base mode (the hot path).
+def refine_from(base, c, dc, a, b, x, s0, md, Om, chain, W):
+    """Return the first tau in (a, b] just past the root of g = c.B, given g(a) >= 0 > g(b), from the
+    first iterate x in (a, b).
 
-    Return the first tau in (a, b] just past the root of g = c.B, given g(a) >= 0 > g(b).
-
-    Safeguarded Newton-bisection on the closed form; the returned point lies on the
-    'outside' (g < 0) side within a few ulp of the root.
+    Safeguarded Newton-bisection on the closed form; the returned point lies on the 'outside' (g < 0)
+    side within a few ulp of the root. base: the seven-function basis of a base mode, else all nine.
+    The basis at the first iterate is evaluated afresh, at each next one (with chain) advanced from the
+    previous one (:func:`basis_step`). W: work space (3 NB): two bases and the basis at b, kept for the
+    caller (W[2 NB:]: on entry the basis at the given b).
     """
-    basis_base(a, s0, md, Om, B)
-    ga = dot_base(c, B)
-    if ga < 0.0:
-        return a
-    basis_base(b, s0, md, Om, B)
-    gb = dot_base(c, B)
-    x = b
-    if gb != ga:
-        x = a + (b - a) * ga / (ga - gb)
-    if not (a < x < b):
-        x = 0.5 * (a + b)
+    Bx = W[0:NB]
+    B = W[NB:2 * NB]
+    Bend = W[2 * NB:3 * NB]
+    mode_basis(base, x, s0, md, Om, Bx)
+    xb = x
     for _ in range(100):
         tolx = 4.0 * EPS * (abs(s0) + abs(b)) + 1e-300
         if b - a <= tolx:
             break
-        basis_base(x, s0, md, Om, B)
-        g = dot_base(c, B)
-        dg = dot_base(dc, B)
+        if x != xb:
+            basis_step(base, x, xb, Bx, s0, md, Om, chain, B)
+            Bx, B = B, Bx
+            xb = x
+        g = mode_dot(base, c, Bx)
+        dg = mode_dot(base, dc, Bx)
         if g >= 0.0:
             a = x
         else:
             b = x
+            copy_basis(Bx, Bend)
         if dg != 0.0:
             xn = x - g / dg
             step = abs(xn - x)
             if step < tolx:
-                a, b, closed = bracket_across(True, c, x, g, tolx, a, b, s0, md, Om, B)
+                b0 = b
+                a, b, closed = bracket_across(base, c, x, g, tolx, a, b, s0, md, Om, Bx, chain, B)
+                if b != b0:
+                    copy_basis(B, Bend)
                 if closed:
                     break
             if not (a < xn < b):
@@ -1158,11 +1231,43 @@ def refine_root_base(c, dc, a, b, s0, md, Om, B):
 
 
 @kernel
-def mode_root(base, c, dc, a, b, s0, md, Om, B):
-    """:func:`refine_root_base` (a base mode) or :func:`refine_root` (a general mode)."""
-    if base:
-        return refine_root_base(c, dc, a, b, s0, md, Om, B)
-    return refine_root(c, dc, a, b, s0, md, Om, B)
+def mode_root_ends(base, c, dc, a, b, Ba, Bb, s0, md, Om, W):
+    """:func:`mode_root` on a cell whose basis values at both ends are known (Ba at a, Bb at b, as the
+    scan has them): g and g' at the ends are dot products, the first iterate is the root of their
+    cubic Hermite interpolant (:func:`hermite_guess`), and the iterates after the first advance the basis
+    by their tiny steps (:func:`refine_from`). W: work space (3 NB; not Ba or Bb); W[2 NB:] holds
+    the basis at the returned point."""
+    ga = mode_dot(base, c, Ba)
+    if ga < 0.0:
+        copy_basis(Ba, W[2 * NB:3 * NB])
+        return a
+    copy_basis(Bb, W[2 * NB:3 * NB])
+    gb = mode_dot(base, c, Bb)
+    dga = mode_dot(base, dc, Ba)
+    dgb = mode_dot(base, dc, Bb)
+    return refine_from(base, c, dc, a, b, hermite_guess(a, b, ga, gb, dga, dgb), s0, md, Om, True, W)
+
+
+@kernel
+def mode_root(base, c, dc, a, b, s0, md, Om, W):
+    """Return the first tau in (a, b] just past the root of g = c.B, given g(a) >= 0 > g(b) (a if
+    g(a) < 0): the basis at both ends, then :func:`refine_from` from the Hermite guess. base: a base mode
+    on the seven-function basis (:func:`basis_base`, the hot path), else a general mode. W: work space
+    (3 NB); W[2 NB:] holds the basis at the returned point."""
+    B = W[2 * NB:3 * NB]
+    mode_basis(base, a, s0, md, Om, B)
+    ga = mode_dot(base, c, B)
+    if ga < 0.0:
+        return a
+    dga = mode_dot(base, dc, B)
+    mode_basis(base, b, s0, md, Om, B)
+    gb = mode_dot(base, c, B)
+    dgb = mode_dot(base, dc, B)
+    if not (gb < 0.0):
+        x = 0.5 * (a + b)
+    else:
+        x = hermite_guess(a, b, ga, gb, dga, dgb)
+    return refine_from(base, c, dc, a, b, x, s0, md, Om, True, W)
 
 
 @kernel
@@ -1879,7 +1984,7 @@ def seg_event_value(p, contact, sgn, held, vlo, vhi, j, y, t, pq, pfail):
 @kernel
 def signed_rows(sg, c, dc, out_c, out_dc):
     """out_c, out_dc = sg c, sg dc: the rows of -g and -g' (sg = -1) for a root search that needs
-    g(a) >= 0 > g(b) (:func:`refine_root`)."""
+    g(a) >= 0 > g(b) (:func:`mode_root`)."""
     for j in range(NB):
         out_c[j] = sg * c[j]
         out_dc[j] = sg * dc[j]
@@ -1946,45 +2051,163 @@ def twin_extrema_root(base, c, dc, ddc, dddc, negc, negdc, tol, ga, dga, ddgb, t
 
 
 @kernel
+def slot_factors(md, i, hc, R, j):
+    """R[j:j+4] = the 2 x 2 map (row-major) taking a modal slot's pair (B[i], B[i+1]) at tau to tau + hc [s]:
+    i = 0 (md[0:4]) or 7 (md[4:8]), kind, a, b, c as in :func:`basis`."""
+    k = 0 if i == 0 else 4
+    kind = md[k]
+    if kind == MODE_OSC:
+        e = math.exp(md[k + 1] * hc)
+        disc = md[k + 2]
+        w = md[k + 3]
+        if disc < 0.0:
+            C = math.cos(w * hc)
+            S = math.sin(w * hc)
+            R[j] = e * C
+            R[j + 1] = -e * S * w
+            R[j + 2] = e * S / w
+            R[j + 3] = e * C
+        elif disc > 0.0:
+            C = math.cosh(w * hc)
+            S = math.sinh(w * hc)
+            R[j] = e * C
+            R[j + 1] = e * S * w
+            R[j + 2] = e * S / w
+            R[j + 3] = e * C
+        else:
+            R[j] = e
+            R[j + 1] = 0.0
+            R[j + 2] = e * hc
+            R[j + 3] = e
+    elif kind == MODE_REAL:
+        R[j] = math.exp(md[k + 1] * hc)
+        R[j + 1] = 0.0
+        R[j + 2] = 0.0
+        R[j + 3] = math.exp(md[k + 2] * hc)
+    else:
+        R[j] = 0.0
+        R[j + 1] = 0.0
+        R[j + 2] = 0.0
+        R[j + 3] = 0.0
+
+
+@kernel
+def basis_factors(base, hc, md, Om, R):
+    """Fill R with the maps that advance :func:`basis` (or :func:`basis_base`) by hc [s]: the first
+    modal slot (R[0:4]), the drive's cos, sin (R[4:8]) and the second slot (R[8:12]). Their cost is one
+    basis evaluation; :func:`basis_advance` then costs a few multiplications. R[12:] keys the factors
+    (hc, Om, md) so that a scan on the same cell size and mode reuses them."""
+    slot_factors(md, 0, hc, R, 0)
+    C = math.cos(Om * hc)
+    S = math.sin(Om * hc)
+    R[4] = C
+    R[5] = -S
+    R[6] = S
+    R[7] = C
+    if base:
+        for j in range(8, 12):
+            R[j] = 0.0
+    else:
+        slot_factors(md, 7, hc, R, 8)
+    R[12] = hc
+    R[13] = Om
+    R[14] = 1.0 if base else 0.0
+    for j in range(8):
+        R[15 + j] = md[j]
+
+
+@kernel
+def factors_valid(base, hc, md, Om, R):
+    """True if R holds :func:`basis_factors` of (base, hc, md, Om)."""
+    if R[12] != hc or R[13] != Om or R[14] != (1.0 if base else 0.0):
+        return False
+    for j in range(8):
+        if R[15 + j] != md[j]:
+            return False
+    return True
+
+
+@kernel
+def basis_advance(base, tb, R, Ba, Bb):
+    """Bb = the basis at tb [s] from Ba at tb - hc (R: :func:`basis_factors` of hc): each modal slot and
+    the drive's cos, sin advance by their 2 x 2 map (e^{lambda hc} products: rounding grows by about an
+    ulp per step, so the scan re-evaluates the basis every SCAN_ANCHOR cells); 1, tau, tau^2 exactly."""
+    b0 = Ba[0]
+    b1 = Ba[1]
+    Bb[0] = R[0] * b0 + R[1] * b1
+    Bb[1] = R[2] * b0 + R[3] * b1
+    b0 = Ba[2]
+    b1 = Ba[3]
+    Bb[2] = R[4] * b0 + R[5] * b1
+    Bb[3] = R[6] * b0 + R[7] * b1
+    Bb[4] = 1.0
+    Bb[5] = tb
+    Bb[6] = tb * tb
+    if not base:
+        b0 = Ba[7]
+        b1 = Ba[8]
+        Bb[7] = R[8] * b0 + R[9] * b1
+        Bb[8] = R[10] * b0 + R[11] * b1
+
+
+@kernel
 def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, tau_end, h, h_slow,
-                 recording, maxF, t_maxF, t_off, B, Bs, ga, dga, negc, negdc, dddc, base):
+                 recording, maxF, t_maxF, t_off, Ba, Bb, Bs, R, Bev, ga, dga, negc, negdc, dddc, base):
     """Find the first event of a linear mode within (0, tau_end] and the extrema of F_i before it;
     return (event code or EV_NONE, its time tau, max |F_i|, its global time).
 
     Event functions are bracketed on cells growing from h to h_slow (h_slow = h: fixed cells), grazing
     minima caught by the sign change of g', crossings refined on the exact expressions by
-    :func:`refine_root`; t_off is the period's start time. base: a base mode on the seven-function
-    basis (:func:`basis_base`, the benchmark's hot path), else a general mode (:func:`basis`).
+    :func:`mode_root_ends` (g, g' at the cell's ends known: no basis evaluation for them); t_off is the
+    period's start time. Bev: the basis at the returned time (for :func:`mode_state`); Ba, Bb, Bs: work
+    space (NB), R: the scan's maps and the root searches' work space (24 + 3 NB). base: a base mode
+    on the seven-function basis (:func:`basis_base`, the benchmark's hot path), else a general mode
+    (:func:`basis`).
     This scan used to be written out inline in :func:`run_core_at` for the base modes, where a call
     cost 20 %: that cost was numba's reference counting of the array arguments, which ``kernel``
     drops (the bench's us per period moved by less than its run-to-run spread).
     """
     ev = EV_NONE
     tau_ev = tau_end
-    # scan
-    mode_basis(base, 0.0, s, md, Om, B)
+    # scan: Ba, Bb the basis at the cell's ends (swapped as the scan moves on)
+    basis_start(base, s, md, Om, Ba)
     for e in range(ne):
-        ga[e] = mode_dot(base, evc[e], B)
-        dga[e] = mode_dot(base, devc[e], B)
-    Fa = mode_dot(base, cF, B)
-    dFa = mode_dot(base, dcF, B)
+        ga[e] = mode_dot(base, evc[e], Ba)
+        dga[e] = mode_dot(base, devc[e], Ba)
+    Fa = mode_dot(base, cF, Ba)
+    dFa = mode_dot(base, dcF, Ba)
     if recording and abs(Fa) > maxF:
         maxF = abs(Fa)
         t_maxF = t_off + s
     ta = 0.0
     hcell = h
+    n_adv = 0
+    h_maps = -1.0  # the cell size R's maps are known to be for
+    Wr = R[24:24 + 3 * NB]
+    Wend = Wr[2 * NB:3 * NB]
     while True:
-        tb = min(ta + hcell, tau_end)
-        mode_basis(base, tb, s, md, Om, B)
+        tb = ta + hcell
+        if tb < tau_end and n_adv < SCAN_ANCHOR - 1:
+            # a whole cell: advance the basis (exact maps, no transcendental functions)
+            if hcell != h_maps:
+                if not factors_valid(base, hcell, md, Om, R):
+                    basis_factors(base, hcell, md, Om, R)
+                h_maps = hcell
+            basis_advance(base, tb, R, Ba, Bb)
+            n_adv += 1
+        else:
+            tb = min(tb, tau_end)
+            mode_basis(base, tb, s, md, Om, Bb)
+            n_adv = 0
         best = tb + 1.0
         best_e = -1
         for e in range(ne):
-            gb = mode_dot(base, evc[e], B)
-            dgb = mode_dot(base, devc[e], B)
+            gb = mode_dot(base, evc[e], Bb)
+            dgb = mode_dot(base, devc[e], Bb)
             r = -1.0
             if gb < 0.0:
                 if ga[e] > evtol[e] or (ta > 0.0 and ga[e] >= 0.0):
-                    r = mode_root(base, evc[e], devc[e], ta, tb, s, md, Om, Bs)
+                    r = mode_root_ends(base, evc[e], devc[e], ta, tb, Ba, Bb, s, md, Om, Wr)
                 else:
                     # a mode start on the event surface (|g| at rounding level, maybe g' ~ 0
                     # too, as at a Coulomb threshold): probe geometrically for the first point
@@ -1995,7 +2218,7 @@ def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, 
                         tk = ta + (tb - ta) * 2.0 ** (kk - 47)
                         mode_basis(base, tk, s, md, Om, Bs)
                         if mode_dot(base, evc[e], Bs) > evtol[e]:
-                            r = mode_root(base, evc[e], devc[e], tk, tb, s, md, Om, Bs)
+                            r = mode_root(base, evc[e], devc[e], tk, tb, s, md, Om, Wr)
                             break
             elif dgb > 0.0 and (dga[e] < 0.0 or (ta == 0.0 and abs(dga[e]) <= 1e-9 * dgb)):
                 # an interior minimum of g (grazing). A mode that starts with g' ~ 0 (a slip
@@ -2012,28 +2235,31 @@ def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, 
                             t0m = tk
                             break
                 m = tb
-                if t0m >= 0.0:
-                    m = mode_root(base, negc, negdc, t0m, tb, s, md, Om, Bs)
+                if t0m == ta:
+                    m = mode_root_ends(base, negc, negdc, ta, tb, Ba, Bb, s, md, Om, Wr)
+                elif t0m >= 0.0:
+                    m = mode_root(base, negc, negdc, t0m, tb, s, md, Om, Wr)
                 mode_basis(base, m, s, md, Om, Bs)
                 gm = mode_dot(base, evc[e], Bs)
                 if gm < -evtol[e]:
-                    r = mode_root(base, evc[e], devc[e], ta, m, s, md, Om, Bs)
+                    r = mode_root_ends(base, evc[e], devc[e], ta, m, Ba, Bs, s, md, Om, Wr)
             elif ga[e] >= 0.0 and twin_reach(ga[e], gb, dga[e], dgb, tb - ta) < -evtol[e]:
                 # g' has one sign at both ends but may vanish twice inside (a maximum and a minimum of g
                 # in one cell, as a contact left near the turning point of a swing), and g may then dip
                 # below the surface
                 r = twin_extrema_root(base, evc[e], devc[e], ddevc[e], dddc, negc, negdc, evtol[e], ga[e],
-                                      dga[e], mode_dot(base, ddevc[e], B), ta, tb, s, md, Om, Bs)
+                                      dga[e], mode_dot(base, ddevc[e], Bb), ta, tb, s, md, Om, Wr)
             if r >= 0.0 and r < best:
                 best = r
                 best_e = e
+                copy_basis(Wend, Bev)
             ga[e] = gb
             dga[e] = dgb
         t_stop = tb if best_e < 0 else best
         # extrema of F_i within [ta, t_stop]
         if recording:
-            Fb = mode_dot(base, cF, B)
-            dFb = mode_dot(base, dcF, B)
+            Fb = mode_dot(base, cF, Bb)
+            dFb = mode_dot(base, dcF, Bb)
             # an extremum of F_i inside the cell; refined only if it can beat maxF: with F'
             # monotone across a cell (1/NPER of the fastest period) |F(m)| <= |F_a| + |F'_a| h
             # and <= |F_b| + |F'_b| h
@@ -2041,10 +2267,10 @@ def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, 
             if ((dFa > 0.0 and dFb < 0.0) or (dFa < 0.0 and dFb > 0.0)) and \
                     min(abs(Fa) + abs(dFa) * hc, abs(Fb) + abs(dFb) * hc) > maxF:
                 if dFa > 0.0:
-                    m = mode_root(base, dcF, ddcF, ta, tb, s, md, Om, Bs)
+                    m = mode_root_ends(base, dcF, ddcF, ta, tb, Ba, Bb, s, md, Om, Wr)
                 else:
                     signed_rows(-1.0, dcF, ddcF, negc, negdc)
-                    m = mode_root(base, negc, negdc, ta, tb, s, md, Om, Bs)
+                    m = mode_root_ends(base, negc, negdc, ta, tb, Ba, Bb, s, md, Om, Wr)
                 if m <= t_stop:
                     mode_basis(base, m, s, md, Om, Bs)
                     Fm = abs(mode_dot(base, cF, Bs))
@@ -2061,18 +2287,13 @@ def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, 
             tau_ev = best
             break
         if tb >= tau_end:
+            copy_basis(Bb, Bev)
             break
         ta = tb
+        Ba, Bb = Bb, Ba
         if hcell < h_slow:
             hcell = min(2.0 * hcell, h_slow)
     return ev, tau_ev, maxF, t_maxF
-
-
-@njit(cache=True)
-def _grow(ev, n):
-    new = np.empty((ev.shape[0] * 2 + 64, 2))
-    new[:n] = ev[:n]
-    return new
 
 
 @kernel
@@ -2371,12 +2592,11 @@ def event_derivatives(ne, lin_gen, md, Om, evc, devc, ddevc, cF, dcF, ddcF):
 
 
 @kernel
-def mode_state(tau, s, md, Om, coef, lin_gen, dsub, B):
-    """Return the state (x_r [m], v_r [m/s], X_c [m], V_c [m/s], d [m]) of a linear mode at time tau [s]
-    after its start at phase s [s], from its closed form (a base mode keeps the substrate's extension
-    dsub [m]); B is work space for the basis."""
+def mode_state(coef, lin_gen, dsub, B):
+    """Return the state (x_r [m], v_r [m/s], X_c [m], V_c [m/s], d [m]) of a linear mode from its closed
+    form, given B, the basis at that time (:func:`locate_event` returns it at the segment's end); a base
+    mode keeps the substrate's extension dsub [m]."""
     base = not lin_gen
-    mode_basis(base, tau, s, md, Om, B)
     d = mode_dot(base, coef[R_D], B) if lin_gen else dsub
     return mode_dot(base, coef[0], B), mode_dot(base, coef[1], B), mode_dot(base, coef[2], B), \
         mode_dot(base, coef[3], B), d
@@ -2739,11 +2959,32 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     exactly (closed form, or the adaptive segment's dense output).
 
     state0 = [x_r, v_r, X_c, V_c] [m, m/s] at phase 0 (time 0).
+    ev_cap : the event list's capacity (> 0: STATUS_EVCAP past it), 0 for no events, < 0 for as many as
+    the run has: the list starts at EV_CAP_START + EV_CAP_PER_PERIOD events per recorded period and,
+    should the run fill it, the run is repeated with four times the room (at most a third more work in
+    all). The list is not grown in place: an array variable rebound inside the segment loop cost numba
+    an atomic reference-count increment and decrement at each segment, 8 % of the benchmark's time.
     Returns (status, status_time_s, samples, n_samples_written, events, n_events,
     periods, energy, final_state) where final_state = [x_r, v_r, X_c, V_c, contact, shell,
     periods integrated (fewer than n_transient + n_record when a settled transient was cut, settle_tol,
     and its recorded periods filled from one settled orbit, :func:`fill_orbit`)].
     """
+    if ev_cap >= 0:
+        return run_segments(p, opts, state0, n_transient, n_record, sample_times, ev_cap,
+                            np.zeros((ev_cap if ev_cap > 0 else 1, 2)))
+    cap = min(EV_CAP_START + EV_CAP_PER_PERIOD * max(n_record, 0), EV_CAP_FIRST_MAX)
+    while True:
+        r = run_segments(p, opts, state0, n_transient, n_record, sample_times, ev_cap, np.zeros((cap, 2)))
+        if r[0] != STATUS_EVGROW:
+            return r
+        cap *= 4
+
+
+@njit(cache=True)
+def run_segments(p, opts, state0, n_transient, n_record, sample_times, ev_cap, events):
+    """The body of :func:`run_core_at`, with the event list given (events: (capacity, 2)); a full list
+    ends the run with STATUS_EVGROW when ev_cap < 0 (the caller repeats it with more room), else it
+    sets STATUS_EVCAP and records no more events."""
     nper = opts[O_NPER]
     do_energy = opts[O_ENERGY] > 0.5
     zeno_max = int(opts[O_ZENO])
@@ -2769,7 +3010,6 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     n_samples = sample_times.shape[0]
     samples = np.zeros((n_samples, N_SAMPLE_COLS))
     rec_events = ev_cap != 0
-    events = np.zeros((ev_cap if ev_cap > 0 else 64, 2))
     periods = np.zeros((max(n_record, 0), N_PERIOD_COLS))
     energy = np.zeros(N_ENERGY)
     final = np.zeros(N_FINAL)
@@ -2794,6 +3034,10 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     negdc = np.zeros(NB)
     B = np.zeros(NB)
     Bs = np.zeros(NB)
+    Ba = np.zeros(NB)
+    Bev = np.zeros(NB)
+    Rsc = np.zeros(24 + 3 * NB)
+    Rsc[12] = -1.0
     ga = np.zeros(6)
     dga = np.zeros(6)
     dddc = np.zeros(NB)
@@ -2961,8 +3205,8 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             event_derivatives(ne, lin_gen, md, Om, evc, devc, ddevc, cF, dcF, ddcF)
             ev, tau_ev, maxF, t_maxF = locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om,
                                                     s, tau_end, h, h_slow, recording, maxF, t_maxF, period * T,
-                                                    B, Bs, ga, dga, negc, negdc, dddc, not lin_gen)
-            xr1, vr1, Xc1, Vc1, d1 = mode_state(tau_ev, s, md, Om, coef, lin_gen, dsub, B)
+                                                    B, Ba, Bs, Rsc, Bev, ga, dga, negc, negdc, dddc, not lin_gen)
+            xr1, vr1, Xc1, Vc1, d1 = mode_state(coef, lin_gen, dsub, Bev)
             if recording:
                 F1 = abs(K * xr1 + Cd * vr1 + F0)
                 if F1 > maxF:
@@ -3051,14 +3295,13 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
             for kk in (kind, kind2):
                 if kk > 0:
                     if n_ev >= events.shape[0]:
-                        if ev_cap < 0:
-                            events = _grow(events, n_ev)
-                        else:
-                            status = STATUS_EVCAP
+                        status = STATUS_EVGROW if ev_cap < 0 else STATUS_EVCAP
                     if n_ev < events.shape[0]:
                         events[n_ev, 0] = t_glob
                         events[n_ev, 1] = kk
                         n_ev += 1
+            if status == STATUS_EVGROW:
+                break
         # ---------------- period end
         if ev == EV_NONE and s_end == T:
             if recording:
@@ -3099,8 +3342,10 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
                 if period == n_transient:
                     energy[E_START] = stored_energy(p, xr, vr, Vc) + 0.5 * p[I_KS] * dsub * dsub
                 if not harmonic and rec_events:
-                    if n_ev >= events.shape[0] and ev_cap < 0:
-                        events = _grow(events, n_ev)
+                    if n_ev >= events.shape[0]:
+                        status = STATUS_EVGROW if ev_cap < 0 else STATUS_EVCAP
+                        if ev_cap < 0:
+                            break
                     if n_ev < events.shape[0]:
                         events[n_ev, 0] = period * T
                         events[n_ev, 1] = K_DRIVE_ON
