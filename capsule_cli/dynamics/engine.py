@@ -480,6 +480,16 @@ def dot_base(c, B):
 
 
 @kernel
+def mode_absdot(base, c, B):
+    """sum |c_j B_j| over the mode's basis functions: the scale of g = c.B's rounding."""
+    n = 7 if base else NB
+    t = 0.0
+    for j in range(n):
+        t += abs(c[j] * B[j])
+    return t
+
+
+@kernel
 def mode_basis(base, tau, s0, md, Om, B):
     """:func:`basis_base` (a base mode: seven functions) or :func:`basis` (a general mode)."""
     if base:
@@ -1215,9 +1225,13 @@ def refine_from(base, c, dc, a, b, x, s0, md, Om, chain, W):
         if dg != 0.0:
             xn = x - g / dg
             step = abs(xn - x)
-            if step < tolx:
+            # g is known to its rounding, about EPS sum |c_j B_j|: a shallow crossing (small g') can be
+            # located no closer than that over |g'|, and Newton's steps then creep (found when the basis
+            # was first chained: g stayed at one rounding level for 100 steps of 2e-15 s)
+            tol_g = max(tolx, 4.0 * EPS * mode_absdot(base, c, Bx) / abs(dg))
+            if step < tol_g:
                 b0 = b
-                a, b, closed = bracket_across(base, c, x, g, tolx, a, b, s0, md, Om, Bx, chain, B)
+                a, b, closed = bracket_across(base, c, x, g, tol_g, a, b, s0, md, Om, Bx, chain, B)
                 if b != b0:
                     copy_basis(B, Bend)
                 if closed:
@@ -2239,14 +2253,16 @@ def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, 
                     m = mode_root_ends(base, negc, negdc, ta, tb, Ba, Bb, s, md, Om, Wr)
                 elif t0m >= 0.0:
                     m = mode_root(base, negc, negdc, t0m, tb, s, md, Om, Wr)
-                mode_basis(base, m, s, md, Om, Bs)
+                copy_basis(Wend if t0m >= 0.0 else Bb, Bs)  # the basis at m
                 gm = mode_dot(base, evc[e], Bs)
                 if gm < -evtol[e]:
                     r = mode_root_ends(base, evc[e], devc[e], ta, m, Ba, Bs, s, md, Om, Wr)
-            elif ga[e] >= 0.0 and twin_reach(ga[e], gb, dga[e], dgb, tb - ta) < -evtol[e]:
+            elif ga[e] >= -evtol[e] and twin_reach(ga[e], gb, dga[e], dgb, tb - ta) < -evtol[e]:
                 # g' has one sign at both ends but may vanish twice inside (a maximum and a minimum of g
                 # in one cell, as a contact left near the turning point of a swing), and g may then dip
-                # below the surface
+                # below the surface. A mode that starts on the surface (a contact just left) has g(0) at
+                # rounding level, of either sign: -evtol, not 0 (with 0 the turning-point contact of
+                # test_dynamics_effects was found or missed by the sign of a 2e-19 m rounding)
                 r = twin_extrema_root(base, evc[e], devc[e], ddevc[e], dddc, negc, negdc, evtol[e], ga[e],
                                       dga[e], mode_dot(base, ddevc[e], Bb), ta, tb, s, md, Om, Wr)
             if r >= 0.0 and r < best:
@@ -2272,8 +2288,7 @@ def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, 
                     signed_rows(-1.0, dcF, ddcF, negc, negdc)
                     m = mode_root_ends(base, negc, negdc, ta, tb, Ba, Bb, s, md, Om, Wr)
                 if m <= t_stop:
-                    mode_basis(base, m, s, md, Om, Bs)
-                    Fm = abs(mode_dot(base, cF, Bs))
+                    Fm = abs(mode_dot(base, cF, Wend))  # Wend: the basis at m
                     if Fm > maxF:
                         maxF = Fm
                         t_maxF = t_off + s + m
