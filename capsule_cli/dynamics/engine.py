@@ -1227,11 +1227,18 @@ def refine_from(base, c, dc, a, b, x, s0, md, Om, chain, W):
             step = abs(xn - x)
             # g is known to its rounding, about EPS sum |c_j B_j|: a shallow crossing (small g') can be
             # located no closer than that over |g'|, and Newton's steps then creep (found when the basis
-            # was first chained: g stayed at one rounding level for 100 steps of 2e-15 s)
+            # was first chained: g stayed at one rounding level for 100 steps of 2e-15 s). So once the step
+            # is within that, the bracket is closed at 2 tolx as before, else at 4, 16, ... times that, up
+            # to the rounding's reach
             tol_g = max(tolx, 4.0 * EPS * mode_absdot(base, c, Bx) / abs(dg))
             if step < tol_g:
                 b0 = b
-                a, b, closed = bracket_across(base, c, x, g, tol_g, a, b, s0, md, Om, Bx, chain, B)
+                t_close = tolx
+                while True:
+                    a, b, closed = bracket_across(base, c, x, g, t_close, a, b, s0, md, Om, Bx, chain, B)
+                    if closed or t_close >= tol_g:
+                        break
+                    t_close *= 4.0
                 if b != b0:
                     copy_basis(B, Bend)
                 if closed:
