@@ -391,23 +391,25 @@ def test_stick_slip_has_no_chattering(one_sided, Pf_N):
 
 
 def test_a_run_that_fills_its_event_list_is_repeated_with_room_and_loses_nothing():
-    """run_core_at with ev_cap < 0 starts with EV_CAP_START + EV_CAP_PER_PERIOD events per recorded
-    period and repeats a run that fills them (the list is not grown in place: an array rebound in the
-    segment loop cost numba a reference-count pair per segment). A secondary constraint 0.52 mm behind
-    the magnet at 10.8 Hz makes 169 events in 4 periods (more than the 128 first allowed): the events,
-    periods and final state equal those of a run given room for all at once, and the reference's."""
+    """run_core_at with ev_cap < 0 records every event: it repeats a run that fills its list with room for
+    the rate it saw (the list is not grown in place: an array rebound in the segment loop cost numba a
+    reference-count pair per segment). A secondary constraint 0.52 mm behind the magnet at 10.8 Hz makes
+    169 events in 4 periods; started with room for 40 (ev_cap = -40), the run fills it and is repeated: the
+    events, periods and final state equal those of a run given room for all at once, and the reference's."""
     from capsule_cli.dynamics.model import EngineOptions, pack_params
     from capsule_cli.dynamics.system import build_system
     s = build_system("one_sided", {"Pf_N": 0.1463739767981198, "gap_back_mm": 0.5232165070505865},
                      ["secondary_constraint"])
     d, fr = Drive(0.37138317016706685, 10.797632034027917), s.friction()
     p, opts = pack_params(s.model, d, fr), EngineOptions().pack()
-    grown = E.run_core(p, opts, np.zeros(4), 0, 4, 1.0, 0, -1)
+    grown = E.run_core(p, opts, np.zeros(4), 0, 4, 1.0, 0, -40)
+    default = E.run_core(p, opts, np.zeros(4), 0, 4, 1.0, 0, -1)
     roomy = E.run_core(p, opts, np.zeros(4), 0, 4, 1.0, 0, 1000)
     assert grown[0] == roomy[0] == E.STATUS_OK
     n = int(grown[5])
-    assert n == int(roomy[5]) and n > E.EV_CAP_START + 4 * E.EV_CAP_PER_PERIOD
+    assert n == int(roomy[5]) == int(default[5]) and n > 40
     np.testing.assert_array_equal(grown[4][:n], roomy[4][:n])
+    np.testing.assert_array_equal(default[4][:n], roomy[4][:n])
     np.testing.assert_array_equal(grown[6], roomy[6])
     np.testing.assert_array_equal(grown[8], roomy[8])
     capped = E.run_core(p, opts, np.zeros(4), 0, 4, 1.0, 0, 100)

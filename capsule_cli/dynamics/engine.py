@@ -163,7 +163,7 @@ STATUS_OK, STATUS_ZENO, STATUS_ILLPOSED, STATUS_RKFAIL, STATUS_EVCAP = 0, 1, 2, 
 STATUS_PLUGIN = 5  # a user plugin force raised or returned a non-finite value
 STATUS_EVGROW = 6  # internal (run_segments): the event list is full; run_core_at repeats the run with more room
 # the event list of a run that records all its events (run_core_at, ev_cap < 0): its first capacity
-EV_CAP_START, EV_CAP_PER_PERIOD, EV_CAP_FIRST_MAX = 64, 16, 1 << 16
+EV_CAP_START, EV_CAP_PER_PERIOD, EV_CAP_FIRST_MAX = 64, 64, 1 << 18
 
 # sample columns
 S_T, S_XM, S_XC, S_VM, S_VC, S_XR, S_CONTACT, S_STICK, S_FI = range(9)
@@ -2982,10 +2982,12 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
 
     state0 = [x_r, v_r, X_c, V_c] [m, m/s] at phase 0 (time 0).
     ev_cap : the event list's capacity (> 0: STATUS_EVCAP past it), 0 for no events, < 0 for as many as
-    the run has: the list starts at EV_CAP_START + EV_CAP_PER_PERIOD events per recorded period and,
-    should the run fill it, the run is repeated with four times the room (at most a third more work in
-    all). The list is not grown in place: an array variable rebound inside the segment loop cost numba
-    an atomic reference-count increment and decrement at each segment, 8 % of the benchmark's time.
+    the run has: the list starts at EV_CAP_START + EV_CAP_PER_PERIOD events per recorded period (at most
+    EV_CAP_FIRST_MAX; np.empty: no cost for room not used; -ev_cap events for ev_cap < -1) and, should the
+    run fill it, the run is repeated
+    with room for 1.25 times the events its rate so far implies (at least four times as much). The list is
+    not grown in place: an array variable rebound inside the segment loop cost numba an atomic
+    reference-count increment and decrement at each segment, 8 % of the benchmark's time.
     Returns (status, status_time_s, samples, n_samples_written, events, n_events,
     periods, energy, final_state) where final_state = [x_r, v_r, X_c, V_c, contact, shell,
     periods integrated (fewer than n_transient + n_record when a settled transient was cut, settle_tol,
@@ -2993,13 +2995,17 @@ def run_core_at(p, opts, state0, n_transient, n_record, sample_times, ev_cap):
     """
     if ev_cap >= 0:
         return run_segments(p, opts, state0, n_transient, n_record, sample_times, ev_cap,
-                            np.zeros((ev_cap if ev_cap > 0 else 1, 2)))
-    cap = min(EV_CAP_START + EV_CAP_PER_PERIOD * max(n_record, 0), EV_CAP_FIRST_MAX)
+                            np.empty((ev_cap if ev_cap > 0 else 1, 2)))
+    cap = min(EV_CAP_START + EV_CAP_PER_PERIOD * max(n_record, 0), EV_CAP_FIRST_MAX) if ev_cap == -1 else -ev_cap
+    T = 1.0 / p[I_F]
     while True:
-        r = run_segments(p, opts, state0, n_transient, n_record, sample_times, ev_cap, np.zeros((cap, 2)))
+        r = run_segments(p, opts, state0, n_transient, n_record, sample_times, ev_cap, np.empty((cap, 2)))
         if r[0] != STATUS_EVGROW:
             return r
-        cap *= 4
+        # r[1]: the time the list filled; the recorded time so far implies the rate
+        t_rec = max(r[1] - n_transient * T, 1e-3 * T)
+        need = 1.25 * cap * (max(n_record, 1) * T) / t_rec + EV_CAP_START
+        cap = max(4 * cap, int(min(need, 1e12)))
 
 
 @njit(cache=True)
@@ -3318,6 +3324,7 @@ def run_segments(p, opts, state0, n_transient, n_record, sample_times, ev_cap, e
                 if kk > 0:
                     if n_ev >= events.shape[0]:
                         status = STATUS_EVGROW if ev_cap < 0 else STATUS_EVCAP
+                        status_t = t_glob
                     if n_ev < events.shape[0]:
                         events[n_ev, 0] = t_glob
                         events[n_ev, 1] = kk
@@ -3366,6 +3373,7 @@ def run_segments(p, opts, state0, n_transient, n_record, sample_times, ev_cap, e
                 if not harmonic and rec_events:
                     if n_ev >= events.shape[0]:
                         status = STATUS_EVGROW if ev_cap < 0 else STATUS_EVCAP
+                        status_t = period * T
                         if ev_cap < 0:
                             break
                     if n_ev < events.shape[0]:
