@@ -69,7 +69,7 @@ Kernels (each compiled, one job)
   shell state x effects), runs it to its first event or the segment's end, applies the transition
   and keeps the period's bookkeeping. The event list is never grown in place (an array variable
   rebound inside the loop cost an atomic reference-count pair per segment, 8 % of the bench): a run
-  that fills it is repeated with four times the room.
+  that fills it is repeated with room for the rate it saw.
 * exact segments, one kernel per job: :func:`mode_path` (which path a shell state takes: base
   closed form, general linear mode, or adaptive), :func:`setup_linear` / :func:`setup_general`
   (the closed forms), :func:`mode_events` (the mode's event functions on its basis) and
@@ -184,7 +184,7 @@ MODE_OSC, MODE_REAL, MODE_NONE = 0, 1, 2
 # SCAN_ANCHOR cells, so that rounding (about an ulp per step) stays within a few ulp
 SCAN_ANCHOR = 16
 # |argument| [rad] up to which a Newton step's exp, sin and cos are taken from short Taylor series
-# (tiny_step_factors: truncation below 1e-19 there)
+# (tiny_pair: truncation below 1e-19 there)
 TINY_ARG = 2e-3
 # coefficient rows of a linear mode's state
 R_XR, R_VR, R_XC, R_VC, R_D = 0, 1, 2, 3, 4
