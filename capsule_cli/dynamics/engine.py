@@ -2235,6 +2235,7 @@ def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, 
                     # clearly inside, then bracket the crossing from there; none -> a genuine
                     # immediate exit.
                     r = ta
+                    copy_basis(Ba, Wend)  # the basis at r (a mode_root below replaces it)
                     for kk in range(48):
                         tk = ta + (tb - ta) * 2.0 ** (kk - 47)
                         mode_basis(base, tk, s, md, Om, Bs)
