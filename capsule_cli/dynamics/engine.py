@@ -186,6 +186,8 @@ SCAN_ANCHOR = 16
 # |argument| [rad] up to which a Newton step's exp, sin and cos are taken from short Taylor series
 # (tiny_pair: truncation below 1e-19 there)
 TINY_ARG = 2e-3
+# locate_event's work space: maps and keys (24), root searches (3 NB), six bases, g and g' per event (12)
+LOCATE_WORK = 24 + 9 * NB + 12
 # coefficient rows of a linear mode's state
 R_XR, R_VR, R_XC, R_VC, R_D = 0, 1, 2, 3, 4
 N_ROWS = 5
@@ -2173,21 +2175,31 @@ def basis_advance(base, tb, R, Ba, Bb):
 
 @kernel
 def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, tau_end, h, h_slow,
-                 recording, maxF, t_maxF, t_off, Ba, Bb, Bs, R, Bev, ga, dga, negc, negdc, dddc, base):
+                 recording, maxF, t_maxF, t_off, R, Bev, base):
     """Find the first event of a linear mode within (0, tau_end] and the extrema of F_i before it;
     return (event code or EV_NONE, its time tau, max |F_i|, its global time).
 
     Event functions are bracketed on cells growing from h to h_slow (h_slow = h: fixed cells), grazing
     minima caught by the sign change of g', crossings refined on the exact expressions by
     :func:`mode_root_ends` (g, g' at the cell's ends known: no basis evaluation for them); t_off is the
-    period's start time. Bev: the basis at the returned time (for :func:`mode_state`); Ba, Bb, Bs: work
-    space (NB), R: the scan's maps and the root searches' work space (24 + 3 NB). base: a base mode
+    period's start time. Bev: the basis at the returned time (for :func:`mode_state`); R: work space
+    (LOCATE_WORK: the scan's maps and keys, the root searches' work, six bases and g, g' at a cell's start
+    per event; one array, for the arguments of a call cost: 17 arrays here had been 7 words each). base: a base mode
     on the seven-function basis (:func:`basis_base`, the benchmark's hot path), else a general mode
     (:func:`basis`).
     This scan used to be written out inline in :func:`run_core_at` for the base modes, where a call
     cost 20 %: that cost was numba's reference counting of the array arguments, which ``kernel``
     drops (the bench's us per period moved by less than its run-to-run spread).
     """
+    o = 24 + 3 * NB
+    Ba = R[o:o + NB]
+    Bb = R[o + NB:o + 2 * NB]
+    Bs = R[o + 2 * NB:o + 3 * NB]
+    negc = R[o + 3 * NB:o + 4 * NB]
+    negdc = R[o + 4 * NB:o + 5 * NB]
+    dddc = R[o + 5 * NB:o + 6 * NB]
+    ga = R[o + 6 * NB:o + 6 * NB + 6]
+    dga = R[o + 6 * NB + 6:o + 6 * NB + 12]
     ev = EV_NONE
     tau_ev = tau_end
     # scan: Ba, Bb the basis at the cell's ends (swapped as the scan moves on)
@@ -3065,7 +3077,7 @@ def run_segments(p, opts, state0, n_transient, n_record, sample_times, ev_cap, e
     Bs = np.zeros(NB)
     Ba = np.zeros(NB)
     Bev = np.zeros(NB)
-    Rsc = np.zeros(24 + 3 * NB)
+    Rsc = np.zeros(LOCATE_WORK)
     Rsc[12] = -1.0
     ga = np.zeros(6)
     dga = np.zeros(6)
@@ -3234,7 +3246,7 @@ def run_segments(p, opts, state0, n_transient, n_record, sample_times, ev_cap, e
             event_derivatives(ne, lin_gen, md, Om, evc, devc, ddevc, cF, dcF, ddcF)
             ev, tau_ev, maxF, t_maxF = locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om,
                                                     s, tau_end, h, h_slow, recording, maxF, t_maxF, period * T,
-                                                    B, Ba, Bs, Rsc, Bev, ga, dga, negc, negdc, dddc, not lin_gen)
+                                                    Rsc, Bev, not lin_gen)
             xr1, vr1, Xc1, Vc1, d1 = mode_state(coef, lin_gen, dsub, Bev)
             if recording:
                 F1 = abs(K * xr1 + Cd * vr1 + F0)
