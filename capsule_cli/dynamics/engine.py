@@ -2183,8 +2183,9 @@ def locate_event(evc, devc, ddevc, evcode, evtol, ne, cF, dcF, ddcF, md, Om, s, 
     minima caught by the sign change of g', crossings refined on the exact expressions by
     :func:`mode_root_ends` (g, g' at the cell's ends known: no basis evaluation for them); t_off is the
     period's start time. Bev: the basis at the returned time (for :func:`mode_state`); R: work space
-    (LOCATE_WORK: the scan's maps and keys, the root searches' work, six bases and g, g' at a cell's start
-    per event; one array, for the arguments of a call cost: 17 arrays here had been 7 words each). base: a base mode
+    (LOCATE_WORK: the scan's maps and keys, the root searches' work, six bases, and g, g' at a cell's start
+    per event). The work space is one array because arguments cost: each array is 7 words on the stack, and
+    17 array arguments here took 15 % of the bench's time against 11 (session 13). base: a base mode
     on the seven-function basis (:func:`basis_base`, the benchmark's hot path), else a general mode
     (:func:`basis`).
     This scan used to be written out inline in :func:`run_core_at` for the base modes, where a call
