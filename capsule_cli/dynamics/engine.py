@@ -1127,14 +1127,14 @@ def tiny_ok(kind, a, disc, w, d):
 
 
 @kernel
-def basis_step(base, x, xb, Bx, s0, md, Om, chain, B):
+def basis_step(base, x, xb, Bx, s0, md, Om, B):
     """B = the basis at x [s], given Bx, the basis at xb: advanced from Bx over the tiny step d = x - xb
-    (a Newton step near a root moves by 1e-5 to 1e-12 of the scan cell) if chain and every argument is at
+    (a Newton step near a root moves by 1e-5 to 1e-12 of the scan cell) if every argument is at
     most TINY_ARG: short Taylor series of exp, sin and cos instead of libm's exp and two sincos, which were
     45 % of the engine's time; each step adds an ulp or two of rounding. Else evaluated afresh. B must
     not be Bx."""
     d = x - xb
-    if chain and abs(Om * d) <= TINY_ARG and tiny_ok(md[0], md[1], md[2], md[3], d) and (
+    if abs(Om * d) <= TINY_ARG and tiny_ok(md[0], md[1], md[2], md[3], d) and (
             base or md[4] == MODE_NONE or tiny_ok(md[4], md[5], md[6], md[7], d)):
         B[0], B[1] = tiny_pair(md[1], md[3], d, Bx[0], Bx[1])
         B[2], B[3] = tiny_pair(0.0, 1.0, Om * d, Bx[2], Bx[3])
@@ -1152,7 +1152,7 @@ def basis_step(base, x, xb, Bx, s0, md, Om, chain, B):
 
 
 @kernel
-def bracket_across(base, c, x, g, tolx, a, b, s0, md, Om, Bx, chain, B):
+def bracket_across(base, c, x, g, tolx, a, b, s0, md, Om, Bx, B):
     """Close a Newton bracket [a, b] of g = c.B at its iterate x (g = g(x), the next step below tolx [s]) from
     the side Newton converged on: test a point 2 tolx across the root. Return (a, b, closed). (Closed from
     inside only, a call converging from outside, g < 0, shrank its bracket by bisection alone: 20-50 basis
@@ -1160,13 +1160,13 @@ def bracket_across(base, c, x, g, tolx, a, b, s0, md, Om, Bx, chain, B):
     if g >= 0.0:
         xo = x + 2.0 * tolx
         if xo < b:
-            basis_step(base, xo, x, Bx, s0, md, Om, chain, B)
+            basis_step(base, xo, x, Bx, s0, md, Om, B)
             if mode_dot(base, c, B) < 0.0:
                 return a, xo, True
     else:
         xo = x - 2.0 * tolx
         if xo > a:
-            basis_step(base, xo, x, Bx, s0, md, Om, chain, B)
+            basis_step(base, xo, x, Bx, s0, md, Om, B)
             if mode_dot(base, c, B) >= 0.0:
                 return xo, b, True
     return a, b, False
@@ -1194,13 +1194,13 @@ def hermite_guess(a, b, ga, gb, dga, dgb):
 
 
 @kernel
-def refine_from(base, c, dc, a, b, x, s0, md, Om, chain, W):
+def refine_from(base, c, dc, a, b, x, s0, md, Om, W):
     """Return the first tau in (a, b] just past the root of g = c.B, given g(a) >= 0 > g(b), from the
     first iterate x in (a, b).
 
     Safeguarded Newton-bisection on the closed form; the returned point lies on the 'outside' (g < 0)
     side within a few ulp of the root. base: the seven-function basis of a base mode, else all nine.
-    The basis at the first iterate is evaluated afresh, at each next one (with chain) advanced from the
+    The basis at the first iterate is evaluated afresh, at each next one advanced from the
     previous one (:func:`basis_step`). W: work space (3 NB): two bases and the basis at b, kept for the
     caller (W[2 NB:]: on entry the basis at the given b).
     """
@@ -1214,7 +1214,7 @@ def refine_from(base, c, dc, a, b, x, s0, md, Om, chain, W):
         if b - a <= tolx:
             break
         if x != xb:
-            basis_step(base, x, xb, Bx, s0, md, Om, chain, B)
+            basis_step(base, x, xb, Bx, s0, md, Om, B)
             Bx, B = B, Bx
             xb = x
         g = mode_dot(base, c, Bx)
@@ -1237,7 +1237,7 @@ def refine_from(base, c, dc, a, b, x, s0, md, Om, chain, W):
                 b0 = b
                 t_close = tolx
                 while True:
-                    a, b, closed = bracket_across(base, c, x, g, t_close, a, b, s0, md, Om, Bx, chain, B)
+                    a, b, closed = bracket_across(base, c, x, g, t_close, a, b, s0, md, Om, Bx, B)
                     if closed or t_close >= tol_g:
                         break
                     t_close *= 4.0
@@ -1268,7 +1268,7 @@ def mode_root_ends(base, c, dc, a, b, Ba, Bb, s0, md, Om, W):
     gb = mode_dot(base, c, Bb)
     dga = mode_dot(base, dc, Ba)
     dgb = mode_dot(base, dc, Bb)
-    return refine_from(base, c, dc, a, b, hermite_guess(a, b, ga, gb, dga, dgb), s0, md, Om, True, W)
+    return refine_from(base, c, dc, a, b, hermite_guess(a, b, ga, gb, dga, dgb), s0, md, Om, W)
 
 
 @kernel
@@ -1290,7 +1290,7 @@ def mode_root(base, c, dc, a, b, s0, md, Om, W):
         x = 0.5 * (a + b)
     else:
         x = hermite_guess(a, b, ga, gb, dga, dgb)
-    return refine_from(base, c, dc, a, b, x, s0, md, Om, True, W)
+    return refine_from(base, c, dc, a, b, x, s0, md, Om, W)
 
 
 @kernel
