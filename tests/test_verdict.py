@@ -180,3 +180,17 @@ def test_where_two_fits_differ_is_a_contiguous_range_with_its_edge():
     top = where_they_differ(x ** 2, {"speed_mm_s": x}, ["speed_mm_s"])
     assert top["edge"] == "high" and top["from"] == 8.0 and top["to"] == 10.0  # 8^2 >= 100 / 2 > 7^2
     assert where_they_differ(np.zeros(10), {"speed_mm_s": x}, ["speed_mm_s"]) is None
+
+
+def test_a_noise_taken_from_a_fits_residuals_is_stated_as_a_bound():
+    """Without replicates the dynamics loop takes the noise from the best fit's residuals: a fit that misses
+    something inflates it, so the verdict must not state it as the noise level."""
+    y = 8 + 1.5 * np.sqrt(X) + RNG.standard_normal(N)
+    base = fit("", y, np.full(N, y.mean()), 1, sq_scale=1.1)
+    good = fit("power", y, 8 + 1.5 * np.sqrt(X), 2, ("speed_mm_s",), 1.1)
+    own = Noise(1.0, 0.15, True, "residual SD", residual_of="power")
+    v = decide_verdict(y, base, [good], own, {"speed_mm_s": X}, [], GROUPS, 5)
+    assert v.missing_effect == "power"
+    assert "noise at most 1 ± 0.15" in v.message and "residual SD of power" in v.message
+    v2 = decide_verdict(y, base, [good], NOISE, {"speed_mm_s": X}, [], GROUPS, 5)
+    assert "noise 1 ± 0.15" in v2.message and "at most" not in v2.message

@@ -863,7 +863,7 @@ def _residual_noise(noise: dict, sd: float, best: DynEvaluation, what: str, why:
     n, k = best.y.size, best.k
     name = "+".join(best.bound.model.effect_names) or "the model as is"
     return {**noise, "sd": sd, "se": sd / math.sqrt(2 * (n - k)), "dof": int(n - k), "reliable": True,
-            "correlated": None,
+            "correlated": None, "residual_of": name,
             "method": (f"residual SD of the best-fitting model tried ({name}, {what}): smaller than the "
                        f"difference-based estimate ({noise['sd']:.3g}), {why}")}
 
@@ -1112,7 +1112,7 @@ def dynamics_verdict(base: DynEvaluation, cands: Sequence[dict], noise: dict, si
         c["delta_cv"], c["delta_cv_se"] = crossval.paired_difference(base.cv_sq, ev.cv_sq, base.groups)
         c["delta_bic"] = ev.bic - base.bic
     nz = Noise(float(sigma), float(noise.get("se") or 0.0), bool(noise.get("reliable", True)),
-               str(noise.get("method", "")), noise.get("correlated"))
+               str(noise.get("method", "")), noise.get("correlated"), str(noise.get("residual_of", "")))
     v = decide_verdict(base.y, summary_of(base), sums, nz, {c: rf[c].to_numpy(float) for c in covs}, struct,
                        base.groups, int(np.unique(base.folds).size),
                        ordered=[c for c in covs if is_ordered(c)], unit=unit, response=what)

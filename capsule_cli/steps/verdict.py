@@ -136,6 +136,9 @@ class Noise:
     reliable: bool = True
     method: str = ""
     correlated: dict | None = None  # {covariate, rho, p_value} when serial correlation was detected
+    #: the residual SD of a fitted model (no replicates): at most the noise when that model fits, more when
+    #: it does not, so held-out errors compared with it cannot show that model's own misfit
+    residual_of: str = ""
 
 
 @dataclass
@@ -495,8 +498,11 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
     expect = noise.sd * math.sqrt(infl) if np.isfinite(noise.sd) else float("nan")
     comb_se = math.hypot(cv_se if np.isfinite(cv_se) else 0.0, (noise.se or 0.0) * math.sqrt(infl))
     excess = noise.reliable and np.isfinite(expect) and cv_base > expect + EXCESS_Z * comb_se
-    noise_txt = (f"noise {_g(noise.sd)} ± {_g(noise.se)} {unit}" if noise.reliable else
-                 f"the noise cannot be estimated (data spread {_g(noise.sd)} {unit} is only an upper bound)")
+    noise_txt = (f"the noise cannot be estimated (data spread {_g(noise.sd)} {unit} is only an upper bound)"
+                 if not noise.reliable else
+                 f"noise at most {_g(noise.sd)} ± {_g(noise.se)} {unit} (no replicates: the residual SD of "
+                 f"{noise.residual_of}, more than the noise if that model misses something; replicates would tell)"
+                 if noise.residual_of else f"noise {_g(noise.sd)} ± {_g(noise.se)} {unit}")
     corr_txt = ""
     if noise.correlated:
         cc = noise.correlated
