@@ -553,18 +553,21 @@ def calibrate(bound: DynBound, y: np.ndarray, sigma: float, rows=None, x0=None, 
     def resid(u):
         return raw(u) * w[idx]
 
+    def weighted_sq(r):  # r: residuals (raw) on the fitted rows
+        rw = r * w[idx]
+        return float(rw @ rw)
+
     def cost(u):
-        r = resid(u)
-        return float(r @ r)
+        return weighted_sq(raw(u))
 
     scale = [ROBUST_SCALE * max(sigma, 1e-12)]
 
-    def robust_cost(u):
-        return robust_of(raw(u) * w_rob[idx])
-
-    def robust_of(r):
+    def robust_of(r):  # r: residuals (raw) on the fitted rows, weighted by the robust stage's weights
         c = scale[0]
-        return float(np.sum(c ** 2 * np.log1p((r / c) ** 2)))
+        return float(np.sum(c ** 2 * np.log1p((r * w_rob[idx] / c) ** 2)))
+
+    def robust_cost(u):
+        return robust_of(raw(u))
 
     u0 = to_u(start)
     if warm:
@@ -603,7 +606,7 @@ def calibrate(bound: DynBound, y: np.ndarray, sigma: float, rows=None, x0=None, 
         if s0 > 0:
             scale[0], s_nm = ROBUST_SCALE * s0, s0
             w_rob = s0 / np.sqrt(s0 ** 2 + np.nan_to_num(sim0["spread"]) ** 2)
-    score = (lambda r: robust_of(r * w_rob[idx])) if robust else (lambda r: float((r * w[idx]) @ (r * w[idx])))
+    score = robust_of if robust else weighted_sq
     best = []
     if scan:
         order = np.argsort([score(r) for _, r in scan])
