@@ -313,9 +313,12 @@ def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmo
 
 
 def trajectory(system: DynSystem, f_Hz: float, Pd_N: float, time_s, duty=None, waveform: str = "harmonic",
-               options: EngineOptions | None = None) -> dict:
+               options: EngineOptions | None = None, start_offset_m: float = 0.0) -> dict:
     """Return {'capsule_mm': array, 'magnet_mm': array} at ``time_s`` [s] from rest at drive phase 0
-    (F = P_d cos 2 pi f t), each sample exact (closed form or the adaptive segment's dense output)."""
+    (F = P_d cos 2 pi f t), each sample exact (closed form or the adaptive segment's dense output).
+
+    start_offset_m: initial magnet-to-shell displacement x_r [m] instead of exact rest (the start's
+    uncertainty, as in :func:`progression`); positions are still measured from the shell's start."""
     t = np.asarray(time_s, dtype=float).ravel()
     if t.size and (not np.all(np.isfinite(t)) or t.min() < 0):
         raise InputError("trajectory times must be finite and >= 0 s")
@@ -327,7 +330,9 @@ def trajectory(system: DynSystem, f_Hz: float, Pd_N: float, time_s, duty=None, w
     ts = t[order]
     n_periods = int(math.floor((ts[-1] if ts.size else 0.0) * d.frequency_Hz)) + 1
     opts = replace(options or EngineOptions(), energy=False).pack()
-    st, st_t, sm, ns, *_ = E.run_core_at(system.params_row(d), opts, np.zeros(4), 0, n_periods, ts, 0)
+    state0 = np.zeros(4)
+    state0[0] = float(start_offset_m)
+    st, st_t, sm, ns, *_ = E.run_core_at(system.params_row(d), opts, state0, 0, n_periods, ts, 0)
     check_status(int(st), float(st_t), system.friction(), f"trajectory f = {d.frequency_Hz:g} Hz",
                  system.model.plugin_forces)
     if ns != ts.size:
