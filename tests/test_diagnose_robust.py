@@ -169,3 +169,23 @@ def test_diagnose_without_figures_writes_the_verdict_and_no_png(tmp_path):
     r = __import__("json").loads((out / "diagnosis.json").read_text())
     assert r["figures"] == [] and not list(out.glob("*.png"))
     assert r["verdict"]["message"] and (out / "diagnosis.md").is_file()
+
+
+def test_a_gross_error_on_an_end_row_is_flagged_and_does_not_hide_a_speed_effect():
+    """An end row is seen by the differences from one side only (matched filter 0.41 of the error): a gross
+    error of 8-10 noise SDs on the first or last of 20 speeds went unflagged in most data sets, inflated the
+    noise and turned a hidden viscous term into "not built in", "the data cannot tell" or "nothing is missing".
+    The end rows are now tested against every model tried refitted without them (a mean shift, exact
+    externally studentised residual; diagnose.edge_outliers). Measured on these 12 data sets: the end row
+    flagged in 12, viscous named in 12 (before: flagged in 3, named in 6)."""
+    truth = mk(fr(["viscous"], c_Ns_m=0.6))
+    flagged = named = 0
+    for seed in range(6):
+        for row, err in ((0, 9.0), (19, -9.0)):
+            df = synthesize(truth, pd.DataFrame({"speed_mm_s": SP20}), 1.0, 0.0, 1, 400 + seed)
+            df.loc[row, "friction_mN"] += err
+            r = diagnose_table(mk(COULOMB_FREE), df, "friction").result
+            flagged += row in [o["row"] for o in r["outliers"]]
+            named += r["verdict"]["missing_effect"] == "viscous"
+            assert r["n_rows"] == 20
+    assert flagged >= 11 and named >= 11, (flagged, named)
