@@ -8,6 +8,7 @@ import yaml
 
 from capsule_cli.dynamics import system as dsys
 from capsule_cli.effects.model import build_model
+from capsule_cli.plots.loop import noise_band_label
 from capsule_cli.steps import dynamics_loop as DL
 
 # about a second each since the loop's small batches run on one engine thread (issue 12 session 4): in CI
@@ -51,3 +52,15 @@ def test_trajectory_compare_recovers_friction_and_reaches_noise(tmp_path):
     assert met["rmse"] <= 1.2 * POS_NOISE
     assert np.isfinite(met["cv_rmse_plain"]) and met["cv"]["groups"] == "by 'run'"
     assert len(met["params"]["Pf_N"]["ci95"]) == 2 and "bootstrap" in met["intervals"]
+    # no replicate runs: the differences of frames that undersample the motion only bound the noise; the fit's
+    # residual SD is the tighter bound, reported as one (the ledger then draws "noise ≤", not a level)
+    assert met["noise_sd"] <= 1.2 * POS_NOISE and "upper bound" in met["noise_method"]
+    assert noise_band_label(met["noise_sd"], met["noise_sd_se"], "mm", met["noise_method"]).startswith("noise ≤")
+
+
+def test_noise_band_label_never_draws_a_bound_as_the_noise_level():
+    assert noise_band_label(1.33, 0.16, "mN", "replicates: pooled within-group SD").startswith("noise level 1.33")
+    assert noise_band_label(7.3, 1.0, "mN", "no replicates and too few points along any covariate: SD of the data "
+                                            "(an upper bound)") == "data spread 7.3 mN (upper bound on noise)"
+    assert noise_band_label(0.198, 0.01, "mm", "residual SD of the best-fitting model tried (...): an upper bound "
+                                               "of the noise") == "noise ≤ 0.198 mm (no replicates)"

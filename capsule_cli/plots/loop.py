@@ -247,6 +247,17 @@ def plot_candidates(cands: pd.DataFrame, base_cv: float, base_se: float, noise_s
     return save_figure(fig, path)
 
 
+def noise_band_label(noise: float, se: float, unit: str, method: str) -> str:
+    """Return the legend label of the noise band: an estimate ("noise level"), or, as ``method`` says, the data's
+    own spread (no replicates and too few points) or an upper bound (no replicates: differences that hold
+    signal, or a fit's residual SD), never drawn as the noise level."""
+    if method.startswith("no replicates and too few"):
+        return f"data spread {noise:.3g} {unit} (upper bound on noise)"
+    if "upper bound" in method:
+        return f"noise ≤ {noise:.3g} {unit} (no replicates)"
+    return f"noise level {noise:.3g} ± {se:.2g} {unit}"
+
+
 def plot_ledger(hist: pd.DataFrame, path: str | Path, title: str = "") -> Path:
     """Draw the held-out error per revision (± SE), the in-sample RMSE, and the noise level as a band."""
     fig, ax = figure(height_in=2.8)
@@ -254,12 +265,10 @@ def plot_ledger(hist: pd.DataFrame, path: str | Path, title: str = "") -> Path:
     unit = str(hist["unit"].iloc[-1])
     noise = float(hist["noise_sd"].iloc[-1])
     nse = float(hist["noise_sd_se"].iloc[-1]) if "noise_sd_se" in hist else 0.0
-    # without replicates or enough points the "noise" is the data's own spread: only an upper bound
-    spread = "noise_method" in hist and str(hist["noise_method"].iloc[-1]).startswith("no replicates and too few")
+    method = str(hist["noise_method"].iloc[-1]) if "noise_method" in hist else ""
     if np.isfinite(noise):
         ax.axhspan(noise - nse, noise + nse, color=OKABE_ITO[2], alpha=0.2, lw=0,
-                   label=(f"data spread {noise:.3g} {unit} (upper bound on noise)" if spread else
-                          f"noise level {noise:.3g} ± {nse:.2g} {unit}"))
+                   label=noise_band_label(noise, nse, unit, method))
         ax.axhline(noise, color=OKABE_ITO[2], lw=0.8)
     ax.errorbar(x, hist["cv_rmse"], yerr=np.nan_to_num(hist["cv_rmse_se"].to_numpy(float)), fmt="o-",
                 color=OKABE_ITO[0], capsize=3, label="held-out RMSE (± SE)")
