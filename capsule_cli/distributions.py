@@ -10,6 +10,8 @@ Arguments are plain numbers (no units: statistics, probabilities, degrees of fre
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy import special
 
@@ -104,6 +106,56 @@ def spearman(x, y) -> tuple[float, float]:
         t = rs * np.sqrt((dof / ((rs + 1.0) * (1.0 - rs))).clip(0))
     p = 2 * special.stdtr(dof, -np.abs(t))
     return float(rs[1, 0]), float(p[1, 0])
+
+
+#: sample sizes up to which :func:`spearman_permutation_p` enumerates every permutation (8! = 40320)
+PERMUTATION_EXACT_N = 8
+#: random permutations drawn (seeded, so the p value is repeatable) for larger samples up to PERMUTATION_MAX_N
+PERMUTATION_DRAWS = 50_000
+#: above this many points Student's t approximation is used (its tail error shrinks as n grows)
+PERMUTATION_MAX_N = 60
+_PERM_NULL: dict[tuple, np.ndarray] = {}
+
+
+def _permutation_null(xr: tuple) -> np.ndarray:
+    """Return the sorted |rho| of the ranks 1..n permuted against the (average) ranks ``xr`` of x: every
+    permutation for n <= PERMUTATION_EXACT_N, else PERMUTATION_DRAWS seeded draws; cached per rank pattern."""
+    if xr not in _PERM_NULL:
+        n = len(xr)
+        x = np.asarray(xr, float) - (n + 1) / 2.0
+        if n <= PERMUTATION_EXACT_N:
+            from itertools import permutations
+
+            perms = np.array(list(permutations(range(1, n + 1))), float)
+        else:
+            perms = np.random.default_rng(n).permuted(np.tile(np.arange(1.0, n + 1), (PERMUTATION_DRAWS, 1)), axis=1)
+        c = perms - (n + 1) / 2.0
+        rho = (c @ x) / math.sqrt(float(c[0] @ c[0]) * float(x @ x))
+        _PERM_NULL[xr] = np.sort(np.abs(rho))
+    return _PERM_NULL[xr]
+
+
+def spearman_permutation_p(x, y) -> tuple[float, float]:
+    """Return (Spearman's rho, two-sided permutation p) of ``y`` against ``x`` (y without ties; x may have ties).
+
+    Student's t approximation of :func:`spearman` rejects too often in the tails that a Bonferroni family of
+    tests uses: at nominal 0.0033 it rejected 1.3-1.4 times as often for n = 8-20 under the null (200,000
+    simulated samples). Under the null every order of y's ranks against x is equally likely (Hollander & Wolfe
+    1999, Nonparametric Statistical Methods, section 8.5), so p = P(|rho*| >= |rho|) over the permutations:
+    exact for n <= PERMUTATION_EXACT_N, else (1 + count) / (1 + draws) over seeded draws (repeatable; SE of
+    p about sqrt(p / draws)); n > PERMUTATION_MAX_N, ties in y or a constant sample: :func:`spearman` as is.
+    """
+    x = np.asarray(x, float).ravel()
+    y = np.asarray(y, float).ravel()
+    rho, p = spearman(x, y)
+    n = x.size
+    if not np.isfinite(rho) or n > PERMUTATION_MAX_N or np.unique(y).size < n:
+        return rho, p
+    null = _permutation_null(tuple(average_ranks(x)))
+    hits = null.size - int(np.searchsorted(null, abs(rho) * (1 - 1e-12), side="left"))
+    if n <= PERMUTATION_EXACT_N:
+        return rho, hits / null.size
+    return rho, (1 + hits) / (1 + null.size)
 
 
 def f_oneway(*samples) -> tuple[float, float]:
