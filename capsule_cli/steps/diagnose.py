@@ -337,8 +337,9 @@ def diagnose_table(model: Model, df: pd.DataFrame, kind: str, where: str = "", k
                 o["test"] = "end row" if o["row"] in ends else "differences or replicates"
             r["n_rows"] = int(len(df_all))
             r["noise"]["method"] += "; " + "; ".join(
-                f"end row {int(kept[e['row']])} left out (externally studentised residual {e['t']:.3g} against "
-                f"the other rows' best fit, {e['model']}; threshold {e['threshold']:.3g})" for e in edge)
+                f"end row {int(kept[e['row']])} left out (a mean shift there accounts for the data better than every "
+                f"model tried; externally studentised residual {e['t']:.3g} under {e['model']}, threshold "
+                f"{e['threshold']:.3g})" for e in edge)
             return dg
     flexible = min([base] + [c.ev for c in cands], key=lambda e: e.rss)
     corr = serial_correlation(df, flexible.resid, covs)
@@ -505,7 +506,8 @@ def diagnosis_markdown(r: dict, cands: list[Candidate], base: Evaluation, winner
               f"{_fmt(r['model_as_is']['rmse'], u)}.", ""]
     if r.get("outliers"):
         lines += [f"- Outliers (more than the rule's threshold of robust noise SDs from their neighbours or "
-                  f"replicates, or an end row the other rows' best fit cannot explain), left out of every fit: rows {', '.join(str(o['row']) for o in r['outliers'])} "
+                  f"replicates, or an end row a mean shift accounts for better than every model tried), left out of every "
+                  f"fit: rows {', '.join(str(o['row']) for o in r['outliers'])} "
                   "(0-based data rows).", ""]
     if r.get("collinear_covariates"):
         lines += ["- Collinear covariates (the data cannot separate their effects): "

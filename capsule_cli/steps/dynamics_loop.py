@@ -293,6 +293,7 @@ class DynBound(FreeParams):
                 obs.append(float(np.interp(t_end, t, x) - np.interp(0.0, t, x)))
                 groups.append(gi)
         self.rows = rows
+        self._by_position = np.array([mode == "position" for mode, _, _ in rows], bool)
         self._obs = np.array(obs, float)
         self._groups = np.array(groups, int)
 
@@ -420,10 +421,13 @@ class DynBound(FreeParams):
         t = d["time_s"].to_numpy(float)
         try:
             sysm = self.system(theta)
-            ref = dsys.trajectory(sysm, f, pdn, t, duty=duty, waveform=wf, options=self.options)[self.response]
-            return max(float(np.max(np.abs(dsys.trajectory(sysm, f, pdn, t, duty=duty, waveform=wf,
-                                                           options=self.options, start_offset_m=x0)[self.response]
-                                           - ref), initial=0.0)) for x0 in START_OFFSETS_M)
+
+            def path(x0: float) -> np.ndarray:
+                return dsys.trajectory(sysm, f, pdn, t, duty=duty, waveform=wf, options=self.options,
+                                       start_offset_m=x0)[self.response]
+
+            ref = path(0.0)
+            return max(float(np.max(np.abs(path(x0) - ref), initial=0.0)) for x0 in START_OFFSETS_M)
         except (InputError, RuntimeError, ValueError, FloatingPointError):
             return math.inf
 
@@ -431,7 +435,7 @@ class DynBound(FreeParams):
         m = len(self.rows)
         pred, spread = np.full(m, np.nan), np.zeros(m)
         cls = np.array(["failed"] * m, dtype=object)
-        by_position = np.array([mode == "position" for mode, _, _ in self.rows], bool)
+        by_position = self._by_position
         need = None if rows is None else {self.rows[j][1] for j in np.asarray(rows, int)}
         runs = dict(self.runs)
         try:
