@@ -104,8 +104,9 @@ def _thin(df: pd.DataFrame, label: str) -> tuple[pd.DataFrame, str]:
 
 def plot_fit(res: pd.DataFrame, curves: pd.DataFrame, main: str, resp: str, path: str | Path,
              title: str = "", noise_sd: float | None = None, extra: pd.DataFrame | None = None,
-             extra_label: str = "", data_label: str = "data") -> Path:
-    """Draw data and the calibrated model with its 95 % confidence band against ``main``.
+             extra_label: str = "", data_label: str = "data", outliers: pd.DataFrame | None = None) -> Path:
+    """Draw data and the calibrated model with its 95 % confidence band against ``main``; ``outliers`` (rows
+    of the data with ``main`` and ``resp``) are drawn as crosses, so the rows left out of the fits are seen.
 
     One colour per covariate combination (curve), the data points in the colour of their curve; the
     legend names the covariates physically (``V = 0.5 mm/s, maximum``) and only those that vary;
@@ -168,6 +169,9 @@ def plot_fit(res: pd.DataFrame, curves: pd.DataFrame, main: str, resp: str, path
             else:
                 ax.plot(c["x"], c["predicted"], "--", color=colour.get(cid, OKABE_ITO[(i + 1) % len(OKABE_ITO)]),
                         lw=0.9, label=extra_label if i == 0 else None)
+    if outliers is not None and len(outliers) and {main, resp} <= set(outliers.columns):
+        ax.plot(outliers[main], outliers[resp], "x", ms=5, mew=1.2, color=OKABE_ITO[7], zorder=4,
+                label="outlier, left out of the fits")
     # origin of the points, in black so it reads apart from the colours of the covariates
     if origin is None:
         ax.plot([], [], "o", ms=4, mfc="none", color="0.25",

@@ -451,7 +451,8 @@ def run_diagnose(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_
         plots.plot_fit(cres, curves, main, resp, out / "best_candidate.png",
                        title=f"{model.name} + {shown.effect.name}", extra=bcurves,
                        data_label=plots.data_label(is_synthetic(df)),
-                       extra_label=f"{model.name} (as is)")
+                       extra_label=f"{model.name} (as is)",
+                       outliers=pd.DataFrame(result["outliers"]) if result["outliers"] else None)
         figs.append("best_candidate.png")
     result["figures"] = figs
 
