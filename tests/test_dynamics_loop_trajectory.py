@@ -1,6 +1,8 @@
 """Trajectories as a camera records them (issue 12 items 2-3): synth, compare, positions per frame."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import pandas as pd
@@ -64,3 +66,34 @@ def test_noise_band_label_never_draws_a_bound_as_the_noise_level():
                                             "(an upper bound)") == "data spread 7.3 mN (upper bound on noise)"
     assert noise_band_label(0.198, 0.01, "mm", "residual SD of the best-fitting model tried (...): an upper bound "
                                                "of the noise") == "noise ≤ 0.198 mm (no replicates)"
+
+
+@pytest.mark.parametrize("gap_mm, noise_seed", [(0.15, 2), (0.7, 2)])
+def test_horizon_continuation_finds_a_secondary_constraint_far_from_its_start_gap(tmp_path, gap_mm, noise_seed):
+    """Four 1-s runs (configs/designs/trajectory_runs.csv) with a secondary constraint at a gap other than
+    the effect's start value (0.1 mm), data from a start 1 nm from rest (an independent simulator's rounding),
+    noise 0.1 mm. Over the whole runs the misfit is a needle in (G_2, k_b): the calibration without the
+    horizon continuation stopped at an in-sample RMSE of 0.48 mm (G_2 0.15 mm) and 3.6 mm (G_2 0.7 mm)."""
+    noise = 0.1
+    truth = _model(tmp_path, "truth", {"Pf_N": 0.02, "gap_back_mm": gap_mm}, ["secondary_constraint"])
+    cand = _model(tmp_path, "cand", {"Pf_N": {"value": 0.03, "free": True, "bounds": [0.001, 0.2]},
+                                     "gap_back_mm": {"value": 0.1, "free": True},
+                                     "constraint_back_N_m": {"value": 97060.0, "free": True},
+                                     "constraint_back_damping_Ns_m": {"value": 0.35, "free": True}},
+                  ["secondary_constraint"])
+    sysm = dsys.build_system("one_sided", {s.param.name: s.value for s in truth.specs}, truth.effect_names)
+    design = pd.read_csv(Path(__file__).parents[1] / "configs" / "designs" / "trajectory_runs.csv")
+    rng, parts = np.random.default_rng(noise_seed), []
+    for _, row in design.iterrows():
+        t = np.arange(0.0, row["duration_s"] + 1e-12, 0.01)
+        x = dsys.trajectory(sysm, row["f_Hz"], row["Pd_N"], t, start_offset_m=1e-9)["capsule_mm"]
+        parts.append(pd.DataFrame({"run": row["run"], "f_Hz": row["f_Hz"], "Pd_N": row["Pd_N"], "time_s": t,
+                                   "capsule_mm": x + noise * rng.standard_normal(t.size)}))
+    bound = DL.DynBound(cand, pd.concat(parts, ignore_index=True), where="test", rk_rtol=1e-9)
+    y = bound.observed()
+    fit = DL.calibrate(bound, y, noise, x0=np.array([0.03, 0.1, 97060.0, 0.35]), budget=DL.EFFORTS["full"],
+                       extra_starts=[[0.03, 0.1, 0.0, 0.0]], refit_first=[0])
+    rmse = float(np.sqrt(np.mean((y - bound.simulate(fit.theta, classify=False)["pred"]) ** 2)))
+    assert rmse <= 1.1 * noise
+    assert abs(fit.theta[1] / gap_mm - 1.0) < 0.02  # G_2
+    assert abs(fit.theta[2] / 97060.0 - 1.0) < 0.1  # k_b

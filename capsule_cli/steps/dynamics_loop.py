@@ -431,12 +431,33 @@ class DynBound(FreeParams):
         except (InputError, RuntimeError, ValueError, FloatingPointError):
             return math.inf
 
+    def horizon_rows(self, rows, periods: float) -> np.ndarray | None:
+        """Return the comparison rows (among ``rows``; all when None) of position-mode frames within the
+        first ``periods`` drive periods of their run, or None when that leaves too few rows to fit the
+        free parameters or all of them."""
+        idx = np.arange(len(self.rows)) if rows is None else np.asarray(rows, int)
+        keep = []
+        for j in idx:
+            mode, r, i = self.rows[j]
+            if mode == "position" and float(self.df.at[i, "time_s"]) * self.run_drive[r][0] <= periods + 1e-9:
+                keep.append(j)
+        if len(keep) < 3 * len(self.free) + 2 or len(keep) == idx.size:
+            return None
+        return np.asarray(keep, int)
+
     def _sim_trajectory(self, theta, rows=None, classify: bool = True) -> dict:
         m = len(self.rows)
         pred, spread = np.full(m, np.nan), np.zeros(m)
         cls = np.array(["failed"] * m, dtype=object)
         by_position = self._by_position
-        need = None if rows is None else {self.rows[j][1] for j in np.asarray(rows, int)}
+        need, t_max = None, {}
+        if rows is not None:  # only these rows' runs, each up to its last needed frame
+            need = set()
+            for j in np.asarray(rows, int):
+                mode, r, i = self.rows[j]
+                need.add(r)
+                t_max[r] = max(t_max.get(r, -math.inf), float(self.df.at[i, "time_s"]) if mode == "position"
+                               else math.inf)
         runs = dict(self.runs)
         try:
             sysm = self.system(theta)
@@ -456,10 +477,11 @@ class DynBound(FreeParams):
                 f, pdn, duty, wf = self.run_drive[r]
                 if mode == "position":
                     if r not in pos:
-                        tr = dsys.trajectory(sysm, f, pdn, d["time_s"].to_numpy(float), duty=duty, waveform=wf,
+                        dd = d[d["time_s"] <= t_max[r]] if r in t_max else d
+                        tr = dsys.trajectory(sysm, f, pdn, dd["time_s"].to_numpy(float), duty=duty, waveform=wf,
                                              options=self.options)
-                        pos[r] = pd.Series(tr[self.response], index=d.index)
-                    pred[j] = pos[r][i]
+                        pos[r] = pd.Series(tr[self.response], index=dd.index)
+                    pred[j] = pos[r].get(i, np.nan)
                     spread[j] = 0.0
                 else:  # drift over the run's whole periods from rest; spread from the steady window SD
                     k = max(int(math.floor(d["time_s"].max() * f + 1e-9)), 1)
@@ -532,7 +554,7 @@ class Fit:
 
 def calibrate(bound: DynBound, y: np.ndarray, sigma: float, rows=None, x0=None, budget: Budget = Budget(),
               seed: int = 0, warm: bool = False, extra_starts: Sequence = (), weights=None,
-              refit_first: Sequence[int] = ()) -> Fit:
+              refit_first: Sequence[int] = (), horizon: bool = True) -> Fit:
     """Return the bounded multi-start fit of the free parameters on ``rows`` (all when None).
 
     Starts: x0, ``extra_starts`` (e.g. an effect at its off values, so a nested model does at least
@@ -552,6 +574,13 @@ def calibrate(bound: DynBound, y: np.ndarray, sigma: float, rows=None, x0=None, 
     without the effect, can sit far from where the effect's start values need it (a secondary constraint at
     the prototype's values on 40 conditions: the fit without this start stopped at G_2 = 0.139 mm, held-out
     8.5 mm/s against noise 0.5).
+
+    Trajectory: the calibration first runs on the first few drive periods of each run and follows its fit
+    to ever longer horizons (:func:`_horizon_start`); that fit is one more start here (its own calibration
+    is called with horizon=False). Positions over a whole run are a needle in the parameters, their first
+    periods are not: on four 1-s runs with a secondary constraint whose gap is not the start value
+    (21 data sets, G_2 0.03-0.7 mm, k_b 3e4-3e5 N/m, noise 0.1 mm), the in-sample RMSE came within 1.25x of
+    the truth's in 10 of 21 fits against 2 of 21 without it, and was lower or equal in all 21.
 
     Progression (three stages): the scan and the Nelder-Mead starts minimise the robust Cauchy loss of the
     residuals weighted at the start (after ``refit_first``): the loss scale is ROBUST_SCALE x s_0, s_0 =
@@ -575,6 +604,11 @@ def calibrate(bound: DynBound, y: np.ndarray, sigma: float, rows=None, x0=None, 
     if k == 0:
         return Fit(np.array([], float), float(np.sum(_plain_sq(y, bound.simulate(None, rows, False), sigma, rows))),
                    1, 0)
+    if horizon and bound.kind == "trajectory" and not warm and budget.starts > 1 and HORIZON_PERIODS:
+        # horizon continuation: the first few periods from rest first, then ever longer horizons
+        x_h = _horizon_start(bound, y, sigma, rows, start, budget, seed, extra_starts, refit_first)
+        if x_h is not None:
+            extra_starts = list(extra_starts) + [x_h]
     lo, hi = bound.bounds
     span = hi - lo
     # box coordinates u in [0, 1]: theta = lo + span u^2 for non-negative parameters spanning a decade or more
@@ -681,6 +715,42 @@ def calibrate(bound: DynBound, y: np.ndarray, sigma: float, rows=None, x0=None, 
     if budget.polish_evals_per_param > 0:
         best_u, best_c = _polish(resid, best_u, best_c, budget.polish_evals_per_param * k)
     return Fit(to_theta(best_u), best_c, nfev[0], len(starts), weights)
+
+
+#: Trajectory horizon continuation (:func:`_horizon_start`): drive periods from rest of the successive fits.
+#: A run's positions over its whole length depend on the parameters as a needle: impacts shift in phase and the
+#: error grows with the distance travelled (a secondary constraint at G_2 = 0.2 mm, 4 runs of 1 s: RMSE 0.1 mm
+#: at the truth, 1.7-4 mm on a (G_2, k_b) grid with P_f re-fitted one cell away), while over the first three
+#: periods the same grid has one smooth valley with its minimum at the truth (0.11 mm). Steps of 1.6x let a
+#: local least-squares refinement follow the minimum as the horizon grows (3x steps lost it at 8 periods).
+HORIZON_PERIODS = (3.0, 5.0, 8.0, 13.0, 21.0)
+
+
+def _horizon_start(bound: "DynBound", y: np.ndarray, sigma: float, rows, x0, budget: Budget, seed: int,
+                   extra_starts: Sequence, refit_first: Sequence[int]) -> np.ndarray | None:
+    """Return a start for a trajectory calibration found by horizon continuation, or None when no horizon
+    shorter than the data leaves enough frames.
+
+    The full multi-start calibration (x0, ``extra_starts``, the base re-fit, the scans) runs on the frames
+    within the first HORIZON_PERIODS[0] drive periods of each position-compared run, where the positions
+    depend smoothly on the parameters; its fit is then refined by the least-squares polish (budget
+    evals_per_param per parameter) on each longer horizon in turn. The result is one more Nelder-Mead start
+    of the calibration on every row, which keeps it only if it fits better there. (Growing the fitted time
+    interval is the usual remedy when a long trajectory makes the misfit a needle in the parameters; multiple
+    shooting answers the same problem: Voss, Timmer & Kurths, Int. J. Bifurc. Chaos 14, 1905-1933, 2004.)"""
+    x_h, first = x0, True
+    for periods in HORIZON_PERIODS:
+        rh = bound.horizon_rows(rows, periods)
+        if rh is None:
+            continue
+        if first:
+            fit = calibrate(bound, y, sigma, rh, x_h, budget, seed, extra_starts=extra_starts,
+                            refit_first=refit_first, horizon=False)
+        else:
+            fit = calibrate(bound, y, sigma, rh, x_h, replace(budget, fold_evals_per_param=budget.evals_per_param),
+                            seed, warm=True)
+        x_h, first = fit.theta, False
+    return None if first else np.asarray(x_h, float)
 
 
 #: points per free parameter of the one-at-a-time scan through the start (:func:`axis_scan`)
