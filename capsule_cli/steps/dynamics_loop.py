@@ -1471,6 +1471,8 @@ def run_compare(model: Model, df: pd.DataFrame, data_path: str, out_dir, ledger=
             noise, ev = revised, ev.with_sigma(float(revised["sd"]))
     else:
         noise = trajectory_noise(noise, [ev])
+        if noise.get("reliable", True) and 0 < float(noise["sd"]) < sigma:
+            ev = ev.with_sigma(float(noise["sd"]))
     dh = data_hash(data_path)
     met = _metrics(ev, noise, data_path, dh, k_folds, how, budget)
     met["where_it_fails"] = plain_summary(ev, sigma)
@@ -1721,6 +1723,12 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
     if bound.kind == "trajectory":
         noise = trajectory_noise(noise, [base] + [c["ev"] for c in cands])
         reliable = bool(noise.get("reliable", True))
+        if reliable and 0 < float(noise["sd"]) < sigma:
+            # the spreads (irregular runs, knife edges) weigh against the noise, not against its upper bound
+            # from frame differences (as for progressions above)
+            base = base.with_sigma(float(noise["sd"]))
+            for c in cands:
+                c["ev"] = c["ev"].with_sigma(float(noise["sd"]))
     verdict = dynamics_verdict(base, cands, noise, float(noise["sd"]) if reliable else sigma, struct, covs, rf)
     verdict = probe_verdict(base, cands, probes, verdict, UNIT[model.kind])
     cands.sort(key=lambda c: c["ev"].cv_rmse)
