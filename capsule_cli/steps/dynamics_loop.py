@@ -301,6 +301,11 @@ class DynBound(FreeParams):
                 groups.append(gi)
         self.rows = rows
         self._by_position = np.array([mode == "position" for mode, _, _ in rows], bool)
+        # per row: its run, and the frame time in drive periods (inf for an average-velocity row)
+        self._row_run = np.array([r for _, r, _ in rows], dtype=object)
+        t = self.df["time_s"].to_numpy(float)[[i for _, _, i in rows]] if rows else np.zeros(0)
+        self._row_time = np.where(self._by_position, t, np.inf)
+        self._row_periods = self._row_time * np.array([self.run_drive[r][0] for _, r, _ in rows], float)
         self._obs = np.array(obs, float)
         self._groups = np.array(groups, int)
 
@@ -449,14 +454,10 @@ class DynBound(FreeParams):
         first ``periods`` drive periods of their run, or None when that leaves too few rows to fit the
         free parameters or all of them."""
         idx = np.arange(len(self.rows)) if rows is None else np.asarray(rows, int)
-        keep = []
-        for j in idx:
-            mode, r, i = self.rows[j]
-            if mode == "position" and float(self.df.at[i, "time_s"]) * self.run_drive[r][0] <= periods + 1e-9:
-                keep.append(j)
-        if len(keep) < 3 * len(self.free) + 2 or len(keep) == idx.size:
+        keep = idx[self._row_periods[idx] <= periods + 1e-9]
+        if keep.size < 3 * len(self.free) + 2 or keep.size == idx.size:
             return None
-        return np.asarray(keep, int)
+        return keep
 
     def _sim_trajectory(self, theta, rows=None, classify: bool = True) -> dict:
         m = len(self.rows)
@@ -465,12 +466,9 @@ class DynBound(FreeParams):
         by_position = self._by_position
         need, t_max = None, {}
         if rows is not None:  # only these rows' runs, each up to its last needed frame
-            need = set()
-            for j in np.asarray(rows, int):
-                mode, r, i = self.rows[j]
-                need.add(r)
-                t_max[r] = max(t_max.get(r, -math.inf), float(self.df.at[i, "time_s"]) if mode == "position"
-                               else math.inf)
+            sel = np.asarray(rows, int)
+            t_max = pd.Series(self._row_time[sel]).groupby(self._row_run[sel]).max().to_dict()
+            need = set(t_max)
         runs = dict(self.runs)
         try:
             sysm = self.system(theta)
@@ -999,11 +997,10 @@ def evaluate(bound: DynBound, sigma: float, folds, groups, x0=None, budget: Budg
         cv_pred[test] = s["pred"][test]
         cv_spread[test] = np.nan_to_num(s["spread"][test])
     knife = knife_edge_runs(bound, y, sim["pred"], cv_pred, groups, folds, fit.theta, fold_theta, sigma)
-    for rec in knife:
-        rows = np.flatnonzero(groups == rec["group"])
-        cv_spread[rows] = np.maximum(cv_spread[rows], np.abs(np.nan_to_num(cv_pred[rows] - sim["pred"][rows])))
-        sim["knife_edge"] = sim.get("knife_edge", np.zeros(y.size, bool))
-        sim["knife_edge"][rows] = True
+    if knife:
+        edge = np.isin(groups, [rec["group"] for rec in knife])
+        cv_spread[edge] = np.maximum(cv_spread[edge], np.abs(np.nan_to_num(cv_pred[edge] - sim["pred"][edge])))
+        sim["knife_edge"] = edge
     cv_sq = _std_sq(y, {"pred": cv_pred, "spread": cv_spread}, sigma)
     cv, se = crossval.cv_rmse(cv_sq, groups)
     _, bic = information_criteria(float(np.sum(_std_sq(y, sim, sigma))), y.size, len(bound.free))
