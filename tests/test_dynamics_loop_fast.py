@@ -376,3 +376,25 @@ def test_probe_verdict_names_the_covariate_only_when_the_probe_beats_every_built
     # no better than the model as is (F test fails): the verdict stands
     none = {"effect": eff_f, "ev": _fake_ev(yy, np.zeros(n), np.zeros(n), 3, groups, vals)}
     assert DL.probe_verdict(base, [], [none], verdict, "mm/s") is verdict and none["passes"] is False
+
+
+def test_residual_figure_draws_a_drift_row_apart_from_the_frames(tmp_path, monkeypatch):
+    """A trajectory run compared by its drift over whole periods has one residual (35.8 mm here) that is not a
+    frame's: the figure draws it in a panel of its own, so the frames' axis keeps the position residuals only."""
+    import matplotlib.pyplot as plt
+
+    figs = []
+    monkeypatch.setattr(plt, "close", lambda fig: figs.append(fig))
+    t = np.arange(0.0, 0.5, 0.01)
+    res = pd.DataFrame({"run": ["r1"] * t.size + ["r2"], "time_s": list(t) + [1.0],
+                        "residual_capsule_mm": list(0.1 * np.sin(40 * t)) + [35.8],
+                        "response_class": ["one_impact"] * t.size + ["irregular"],
+                        "compared": ["position"] * t.size + ["average_velocity"]})
+    DL._plot_residuals(res, SimpleNamespace(bound=SimpleNamespace(kind="trajectory"), sigma=0.1),
+                       tmp_path / "r.png", "test")
+    frames_ax, drift_ax = figs[0].axes
+    frame_y = np.concatenate([ln.get_ydata() for ln in frames_ax.get_lines()])
+    assert np.max(np.abs(frame_y)) < 0.11
+    assert [list(ln.get_ydata()) for ln in drift_ax.get_lines()][0] == [35.8]
+    assert "drift" in drift_ax.get_ylabel() and "[mm]" in drift_ax.get_ylabel()
+    assert (tmp_path / "r.png").stat().st_size > 0

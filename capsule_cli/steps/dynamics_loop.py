@@ -1869,6 +1869,11 @@ def diagnosis_markdown(r: dict) -> str:
 
 
 def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str) -> None:
+    """Residuals by response class against the drive frequency (progression) or the frame time (trajectory).
+
+    A trajectory run compared by its drift over whole periods (``compared = average_velocity``) has one
+    residual that is not a frame's: it is drawn in a panel of its own, per run, so that it is not read as a
+    position error at one instant."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -1878,16 +1883,33 @@ def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str
 
     col = [c for c in res.columns if c.startswith("residual_")][0]
     xcol = "f_Hz" if ev.bound.kind == "progression" else "time_s"
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    drift = (res["compared"] == "average_velocity").to_numpy() if "compared" in res.columns \
+        else np.zeros(len(res), bool)
+    if drift.any():
+        fig, (ax, axd) = plt.subplots(1, 2, figsize=(7.6, 4.0), gridspec_kw={"width_ratios": [3, 1]})
+    else:
+        fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    frames = res[~drift]
     for c in RESPONSE_CLASSES + ("failed",):
-        m = res["response_class"] == c
+        m = frames["response_class"] == c
         if m.any():
-            ax.plot(res.loc[m, xcol], res.loc[m, col], "o", ms=4, label=c)
+            ax.plot(frames.loc[m, xcol], frames.loc[m, col], "o", ms=4, label=c)
     ax.axhspan(-ev.sigma, ev.sigma, color="0.85", zorder=0, label="±noise SD")
     ax.set_xlabel(xcol.replace("_Hz", " [Hz]").replace("_s", " [s]"))
-    ax.set_ylabel(f"residual [{UNIT[ev.bound.kind]}]")
+    what = "position residual" if ev.bound.kind == "trajectory" else "residual"
+    ax.set_ylabel(f"{what} [{UNIT[ev.bound.kind]}]")
     ax.set_title(title, fontsize=9)
     ax.legend(fontsize=7)
+    if drift.any():
+        d = res[drift]
+        runs = d["run"].astype(str).to_list()
+        axd.plot(range(len(runs)), d[col].to_numpy(float), "D", ms=5, mfc="none", color="C3")
+        axd.axhline(0.0, color="0.6", lw=0.8)
+        axd.set_xticks(range(len(runs)), runs, fontsize=7)
+        axd.set_xlim(-0.6, len(runs) - 0.4)
+        axd.set_xlabel("run (irregular)")
+        axd.set_ylabel(f"drift residual over whole periods [{UNIT[ev.bound.kind]}]")
+        axd.set_title("irregular runs: drift", fontsize=8)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format=path.suffix.lstrip("."), dpi=120)
