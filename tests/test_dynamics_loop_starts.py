@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 
 from capsule_cli.dynamics import system as dsys
-from capsule_cli.errors import InputError
 from capsule_cli.steps import dynamics_loop as DL
 from capsule_cli.steps.synth import read_design
 
@@ -44,14 +43,22 @@ def case():
     return bound, bound.simulate(None), bound.simulate(None, starts=True)
 
 
-def test_zero_offset_is_exact_rest_and_offsets_need_the_rest_protocol():
+def test_zero_offset_is_exact_rest_and_a_continuation_offset_moves_each_condition_start():
+    """rest: offset 0 is exact rest. up: the offset is added to the state each condition of the sweep starts
+    from, so an offset at the second frequency only leaves the first condition bit for bit as it was."""
     sysm = dsys.build_system("one_sided", PARAMS, ["secondary_constraint"])
     f, pdn = np.array([27.0, 36.0]), np.array([0.2, 0.2])
     rest = dsys.progression(sysm, f, pdn, protocol=PROTO)
     zero = dsys.progression(sysm, f, pdn, protocol=PROTO, start_offset_m=0.0)
     assert np.array_equal(rest["velocity_mm_s"].to_numpy(), zero["velocity_mm_s"].to_numpy())
-    with pytest.raises(InputError, match="rest"):
-        dsys.progression(sysm, f, pdn, protocol=dsys.Protocol("up", 60, 24), start_offset_m=1e-6)
+    up = dsys.Protocol("up", 20, 8)
+    plain = dsys.progression(sysm, f, pdn, protocol=up)["velocity_mm_s"].to_numpy()
+    assert np.array_equal(plain, dsys.progression(sysm, f, pdn, protocol=up, start_offset_m=0.0)
+                          ["velocity_mm_s"].to_numpy())
+    second = dsys.progression(sysm, f, pdn, protocol=up, start_offset_m=[0.0, 1e-4])["velocity_mm_s"].to_numpy()
+    first = dsys.progression(sysm, f, pdn, protocol=up, start_offset_m=[1e-4, 0.0])["velocity_mm_s"].to_numpy()
+    assert second[0] == plain[0] and second[1] != plain[1]
+    assert first[0] != plain[0]
 
 
 def test_start_spread_on_every_condition_and_never_below_the_window_term(case):

@@ -261,9 +261,12 @@ def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmo
                 start_offset_m=None) -> pd.DataFrame:
     """Return one row per condition (same order as the inputs) of the steady progression.
 
-    start_offset_m (protocol ``rest`` only): initial magnet-to-shell displacement x_r per condition [m]
-    (scalar or one per condition) instead of exact rest, to estimate a response's spread over
-    starting states (multistable or chaotic conditions); None: exact rest.
+    start_offset_m: magnet-to-shell displacement x_r [m] (scalar or one per condition) added to each
+    condition's starting state, to estimate a response's spread over starting states (multistable or
+    chaotic conditions); None: none. Protocol rest: the start is rest + the offset. Protocol up/down: the
+    offset is added to the state the condition starts from (rest at the sweep's first frequency, else the
+    previous frequency's end state), as the rounding of another simulator or the state handed over between
+    two measurements would move it.
 
     Columns: velocity_mm_s (average shell velocity over the recorded periods), impacts_per_period
     (mean), period_number (1..8, 0 = irregular/none found), response_class ('no_impact' |
@@ -295,8 +298,8 @@ def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmo
                          system.model.plugin_forces)
             results[i] = per[i]
     else:
-        if start_offset_m is not None:
-            raise InputError("start_offset_m applies to the protocol 'rest' only")
+        offs = (np.zeros(n) if start_offset_m is None
+                else np.broadcast_to(np.asarray(start_offset_m, float), (n,)).copy())
         groups: dict[tuple[float, float], list[int]] = {}
         for i in range(n):
             groups.setdefault((float(Pd[i]), float(D[i])), []).append(i)
@@ -304,6 +307,7 @@ def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmo
             idx = sorted(idx, key=lambda i: f_in[i], reverse=protocol.start == "down")
             state = np.zeros(4)
             for i in idx:
+                state[0] += offs[i]
                 st, st_t, _, _, _, _, per, _, fin = E.run_core(P[i], opts, state, ntr, nrec, 1.0, 0, 0)
                 check_status(int(st), float(st_t), fr, f"condition f = {f[i]:g} Hz, Pd = {Pd[i]:g} N",
                              system.model.plugin_forces)

@@ -109,6 +109,9 @@ class FitSummary:
     covariates : covariate columns the effect depends on (empty for the model as is)
     structure : residual-structure records of its in-sample residuals (see residual_tests.structure_tests)
     at_bound : names of the effect's parameters that ended at a bound (its form strained to fit)
+    resid : in-sample residuals the direct comparison of two fits uses (:func:`rank_supported`), when they are
+        not y - pred [response unit]: dynamics give theirs standardised by the error model (r sigma / SD_i), so
+        that a chaotic response's spread counts as noise there as it does in ``rss``
     """
 
     name: str
@@ -119,6 +122,7 @@ class FitSummary:
     covariates: tuple[str, ...] = ()
     structure: list[dict] = field(default_factory=list)
     at_bound: tuple[str, ...] = ()
+    resid: np.ndarray | None = None
     #: for a pair of effects fitted together (``name`` "A+B"): the two effect names
     members: tuple[str, ...] = ()
 
@@ -235,19 +239,23 @@ def rank_supported(y: np.ndarray, sup: Sequence[FitSummary], alpha: float = ALPH
     """
     y = np.asarray(y, float)
     n = y.size
+
+    def r(c: FitSummary) -> np.ndarray:
+        return y - c.pred if c.resid is None else np.asarray(c.resid, float)
+
     order = sorted(sup, key=lambda c: (bool(c.at_bound), aicc(c.rss, n, c.n_free), c.n_free))
     win = order[0]
     for c in order[1:]:
         if bool(c.at_bound) and not win.at_bound:
             continue
-        z, p = vuong_test(y - c.pred, c.n_free, y - win.pred, win.n_free)
+        z, p = vuong_test(r(c), c.n_free, r(win), win.n_free)
         if z > 0 and p < alpha:
             win = c
     alts = []
     for c in order:
         if c is win:
             continue
-        z, p = vuong_test(y - win.pred, win.n_free, y - c.pred, c.n_free)
+        z, p = vuong_test(r(win), win.n_free, r(c), c.n_free)
         if p >= alpha:
             alts.append((c, p))
     return win, alts
