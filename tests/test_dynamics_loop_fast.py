@@ -418,3 +418,30 @@ def test_a_continuation_sweep_is_simulated_whole_for_a_subset_of_conditions(tmp_
     alone = dsys.progression(b.system(None), design["f_Hz"].to_numpy()[rows], design["Pd_N"].to_numpy()[rows],
                              protocol=b.protocol)["velocity_mm_s"].to_numpy()
     assert np.max(np.abs(alone - whole[rows])) > 1.0  # a sweep of its own has another history here
+
+
+UP = {"start": "up", "transient_periods": 40, "recorded_periods": 16}
+UP_DESIGN = pd.DataFrame({"f_Hz": np.tile([15.0, 18.0, 21.0, 24.0, 27.0, 30.0], 2), "Pd_N": np.repeat([0.2, 0.25], 6)})
+
+
+@pytest.mark.parametrize("hidden", [None, "secondary_constraint"])
+def test_continuation_protocol_loop(tmp_path, hidden):
+    """Data run by continuation up in frequency (each frequency from the previous one's end state), the model
+    file saying so: with nothing missing the verdict is null and the model as is is held out at the noise; a
+    hidden secondary constraint is named and, added, held out at the noise on the predictable conditions.
+    Before held-out conditions were predicted within their whole sweep, a fold's conditions ran as a sweep of
+    their own (another history): the null was "the data cannot tell" and the constraint held out at 67 mm/s."""
+    params = {"Pf_N": 0.02} | ({"gap_back_mm": 0.3} if hidden else {})
+    truth = _model(tmp_path, "truth_up", [hidden] if hidden else [], params, protocol=UP)
+    base = _model(tmp_path, "base_up", params={"Pf_N": FREE_PF}, protocol=UP)
+    df, path = _progression_data(tmp_path, truth, UP_DESIGN, seed=2, replicates=2)
+    r = DL.run_diagnose(base, df, path, tmp_path / "diag", k_folds=3, seed=0, figures=False, budget=QUICK,
+                        candidates=CANDIDATES)
+    v = r["verdict"]
+    if hidden is None:
+        assert v["outcome"] == "nothing_missing", v["message"]
+        assert r["model_as_is"]["cv_rmse"] <= 1.2 * NOISE
+    else:
+        assert v["missing_effect"] == hidden, v["message"]
+        win = next(c for c in r["candidates"] if c["effect"] == hidden)
+        assert win["cv_rmse_not_irregular"] <= 1.2 * NOISE
