@@ -9,11 +9,15 @@ quasi-static loop): a *finding* is a named effect (missing_effect) or a named co
 Usage:
     python benchmarks/dynamics_loop_calibration.py --seeds 100 [--effort quick]
         [--candidates secondary_constraint,viscous_drag] [--out benchmarks/dynamics_loop_calibration_result.json]
+        [--protocol rest|up|down] [--designs six,ten | sweep]
 
 The result JSON is rewritten after every seed, so an interrupted run still reports the seeds done.
 Designs (alternating over seeds), responses periodic for the base model at P_f = 0.02 N:
     six: f 30, 34, 38 Hz x P_d 0.08, 0.10 N (the CI tests' design)
     ten: f 30, 32, 34, 36, 38 Hz x P_d 0.08, 0.12 N
+and, for a continuation protocol, where the sweep's history matters (the end state handed from one frequency to
+the next decides the branch: one, several and irregular responses):
+    sweep: f 15, 18, 21, 24, 27, 30 Hz x P_d 0.20, 0.25 N
 """
 from __future__ import annotations
 
@@ -41,29 +45,32 @@ PROTO = {"start": "rest", "transient_periods": 40, "recorded_periods": 16}
 DESIGNS = {
     "six": pd.DataFrame({"f_Hz": np.tile([30.0, 34.0, 38.0], 2), "Pd_N": np.repeat([0.08, 0.10], 3)}),
     "ten": pd.DataFrame({"f_Hz": np.tile([30.0, 32.0, 34.0, 36.0, 38.0], 2), "Pd_N": np.repeat([0.08, 0.12], 5)}),
+    "sweep": pd.DataFrame({"f_Hz": np.tile([15.0, 18.0, 21.0, 24.0, 27.0, 30.0], 2),
+                           "Pd_N": np.repeat([0.20, 0.25], 6)}),
 }
 
 
-def _models(tmp: Path):
+def _models(tmp: Path, start: str = "rest"):
     out = {}
     for name, params in (("truth", {"Pf_N": 0.02}),
                          ("base", {"Pf_N": {"value": 0.03, "free": True, "bounds": [0.001, 0.2]}})):
-        doc = {"kind": "progression", "base": "one_sided", "effects": [], "params": params, "protocol": PROTO}
+        doc = {"kind": "progression", "base": "one_sided", "effects": [], "params": params,
+               "protocol": PROTO | {"start": start}}
         (tmp / f"{name}.yaml").write_text(yaml.safe_dump(doc))
         out[name] = build_model(tmp / f"{name}.yaml")
     return out["truth"], out["base"]
 
 
 def run(seeds: int, effort: str, candidates: list[str] | None, out: str | None, first_seed: int = 0,
-        replicates: int = 2) -> dict:
+        replicates: int = 2, start: str = "rest", designs: tuple[str, ...] = ("six", "ten")) -> dict:
     budget = DL.EFFORTS[effort]
     rows, t0 = [], time.perf_counter()
     rec: dict = {}
     with tempfile.TemporaryDirectory() as tmpd:
         tmp = Path(tmpd)
-        truth, base = _models(tmp)
+        truth, base = _models(tmp, start)
         for s in range(first_seed, first_seed + seeds):
-            dname = list(DESIGNS)[s % len(DESIGNS)]
+            dname = designs[s % len(designs)]
             df = DL.synthesize_progression(truth, DESIGNS[dname], NOISE, replicates, 10_000 + s)
             path = tmp / f"null_{s}_synthetic.csv"
             df.to_csv(path, index=False)
@@ -85,8 +92,8 @@ def run(seeds: int, effort: str, candidates: list[str] | None, out: str | None, 
             rec = {"what": "false-alarm rate of the dynamics diagnose on null progression data",
                    "budget_rule": ALPHA_EFFECT + ALPHA_STRUCTURE, "effort": effort,
                    "candidates": candidates or "all applicable", "noise_sd_mm_s": NOISE, "replicates": replicates,
-                   "protocol": PROTO,
-                   "designs": {k: d.to_dict(orient="list") for k, d in DESIGNS.items()},
+                   "protocol": PROTO | {"start": start},
+                   "designs": {k: DESIGNS[k].to_dict(orient="list") for k in designs},
                    "data_sets": n, "findings": findings, "finding_rate": findings / n, "finding_rate_ci95": [lo, hi],
                    "outcomes": dict(outcomes), "seconds": time.perf_counter() - t0, "runs": rows}
             if out:
@@ -104,10 +111,16 @@ def main() -> None:
                     help="comma-separated effects to try ('' for all applicable)")
     ap.add_argument("--replicates", type=int, default=2,
                     help="values per condition (1: no replicates, the noise then comes from the fits' residuals)")
+    ap.add_argument("--protocol", default="rest", choices=("rest", "up", "down"),
+                    help="how the data were run (and the model file says so)")
+    ap.add_argument("--designs", default="six,ten", help=f"comma-separated, alternating over seeds: {sorted(DESIGNS)}")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "dynamics_loop_calibration_result.json"))
     a = ap.parse_args()
     cands = [c for c in a.candidates.split(",") if c] or None
-    run(a.seeds, a.effort, cands, a.out, a.first_seed, a.replicates)
+    designs = tuple(d for d in a.designs.split(",") if d)
+    if not designs or any(d not in DESIGNS for d in designs):
+        ap.error(f"--designs: choose from {sorted(DESIGNS)}")
+    run(a.seeds, a.effort, cands, a.out, a.first_seed, a.replicates, a.protocol, designs)
 
 
 if __name__ == "__main__":

@@ -341,8 +341,9 @@ def test_trajectory_noise_replicates_only_between_runs_at_one_drive(tmp_path):
 def _fake_ev(y, pred, cv_pred, k, groups, values=None):
     """An evaluation as probe_verdict reads it: rss, k, y, cv_sq, cv_rmse, groups, bound.values."""
     cv_sq = (y - cv_pred) ** 2
+    cv, se = crossval.cv_rmse(cv_sq, groups)
     return SimpleNamespace(y=y, k=k, rss=float(np.sum((y - pred) ** 2)), cv_sq=cv_sq, groups=groups,
-                           cv_rmse=float(np.sqrt(cv_sq.mean())), theta=None,
+                           cv_rmse=cv, cv_rmse_se=se, folds=np.asarray(groups) % 5, theta=None,
                            bound=SimpleNamespace(values=lambda th: dict(values or {})))
 
 
@@ -445,3 +446,35 @@ def test_continuation_protocol_loop(tmp_path, hidden):
         assert v["missing_effect"] == hidden, v["message"]
         win = next(c for c in r["candidates"] if c["effect"] == hidden)
         assert win["cv_rmse_not_irregular"] <= 1.2 * NOISE
+
+
+def test_probe_at_the_noise_where_the_best_built_in_is_not_names_the_covariate():
+    """probe_verdict (no engine), rule (b'): the best built-in fits the smooth part of the misfit but leaves four
+    conditions 4-40 noise SDs off (a response that the missing effect moves to another branch there); the probe
+    fits them all. The paired difference of held-out RMSE has a large standard error (the misfit sits in four
+    of 40 conditions), so (b) alone keeps the built-in; with the noise known, the probe is at the noise level
+    and the built-in is not, and the covariate is named. Without the noise the verdict stands."""
+    rng = np.random.default_rng(5)
+    n = 40
+    groups = np.arange(n)
+    smooth = 3.0 * np.sin(np.arange(n))
+    spikes = np.zeros(n)
+    spikes[[3, 11, 24, 37]] = (40.0, 20.0, 8.0, 4.0)
+    yy = rng.normal(0.0, 1.0, n) + smooth + spikes
+    base = _fake_ev(yy, np.zeros(n), np.zeros(n), 1, groups)
+    builtin = _fake_ev(yy, smooth, smooth, 3, groups)
+    eff = SimpleNamespace(name="probe_Pd_N", covariates=("Pd_N",),
+                          params=(SimpleNamespace(name="drive_Pd_scale"), SimpleNamespace(name="drive_Pd_exponent")))
+    probe = {"effect": eff, "ev": _fake_ev(yy, smooth + spikes, smooth + spikes, 3, groups,
+                                           {"drive_Pd_scale": 0.55, "drive_Pd_exponent": -0.43})}
+    d, se = crossval.paired_difference(builtin.cv_sq, probe["ev"].cv_sq, groups)
+    assert 0 < d < DL.PROBE_Z * se  # the premise: (b) does not decide
+    cands = [{"effect": SimpleNamespace(name="substrate_compliance"), "ev": builtin}]
+    verdict = {"outcome": "missing_effect", "missing_effect": "substrate_compliance", "covariate": None}
+    assert DL.probe_verdict(base, cands, [probe], verdict, "mm/s") is verdict
+    v = DL.probe_verdict(base, cands, [probe], verdict, "mm/s", noise={"sd": 1.0, "se": 0.11, "reliable": True})
+    assert v["outcome"] == "not_built_in" and v["covariate"] == "Pd_N" and v["closest"] == "substrate_compliance"
+    assert "at the noise level where the built-in is not" in v["message"]
+    # the noise only bounded (not reliable): no (b')
+    assert DL.probe_verdict(base, cands, [probe], verdict, "mm/s",
+                            noise={"sd": 1.0, "se": 0.11, "reliable": False}) is verdict
