@@ -303,16 +303,21 @@ def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmo
         groups: dict[tuple[float, float], list[int]] = {}
         for i in range(n):
             groups.setdefault((float(Pd[i]), float(D[i])), []).append(i)
-        for idx in groups.values():
-            idx = sorted(idx, key=lambda i: f_in[i], reverse=protocol.start == "down")
-            state = np.zeros(4)
-            for i in idx:
-                state[0] += offs[i]
-                st, st_t, _, _, _, _, per, _, fin = E.run_core(P[i], opts, state, ntr, nrec, 1.0, 0, 0)
-                check_status(int(st), float(st_t), fr, f"condition f = {f[i]:g} Hz, Pd = {Pd[i]:g} N",
+        # the sweeps (one per amplitude) advance in lockstep: their k-th frequencies run as one parallel batch,
+        # each from its own sweep's carried state (the same run per condition as one sweep at a time)
+        sweeps = [sorted(idx, key=lambda i: f_in[i], reverse=protocol.start == "down") for idx in groups.values()]
+        states = np.zeros((len(sweeps), 4))
+        for k in range(max(len(sw) for sw in sweeps)):
+            live = [j for j, sw in enumerate(sweeps) if k < len(sw)]
+            idx = np.array([sweeps[j][k] for j in live], int)
+            s0 = states[live].copy()
+            s0[:, 0] += offs[idx]
+            st, per, _, fin = run_many(np.ascontiguousarray(P[idx]), opts, s0, ntr, nrec)
+            for j, i, st_i, per_i, fin_i in zip(live, idx, st, per, fin):
+                check_status(int(st_i), float("nan"), fr, f"condition f = {f[i]:g} Hz, Pd = {Pd[i]:g} N",
                              system.model.plugin_forces)
-                results[i] = per
-                state = np.array([fin[0], fin[1], 0.0, fin[3]])
+                results[i] = per_i
+                states[j] = (fin_i[0], fin_i[1], 0.0, fin_i[3])
     return pd.DataFrame([summarize_periods(results[i], float(f[i])) for i in range(n)])
 
 
