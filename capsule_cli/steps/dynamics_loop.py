@@ -68,8 +68,8 @@ from ..tables import (Column, TableSchema, is_synthetic, provenance, write_json_
                       write_table, write_text_atomic)
 from . import crossval
 from .residual_tests import is_ordered, noise_estimate, structure_tests
-from .verdict import (ALPHA_EFFECT, EXCESS_Z, RULE_TEXT, FitSummary, Noise, decide_verdict,
-                      expected_cv_inflation, nested_f_test)
+from .verdict import (ALPHA_EFFECT, EXCESS_Z, RULE_TEXT, FitSummary, Noise, decide_verdict, nested_f_test,
+                      noise_expectation)
 
 DYN_KINDS = ("progression", "trajectory")
 #: response classes of dynamics.system.progression (contract section 2, verdict.regime)
@@ -1644,12 +1644,12 @@ def needs_probes(base: DynEvaluation, cands: Sequence[dict]) -> bool:
 def noise_excess(ev: DynEvaluation, noise: Mapping | None) -> tuple[float, float, float] | None:
     """Return (held-out RMSE, its value expected from the noise, standard error of the comparison) of ``ev``
     [response unit], as the quasi-static rule weighs a winner's held-out error against the noise
-    (:func:`.verdict.expected_cv_inflation`, EXCESS_Z); None when the noise is not known (no reliable SD)."""
+    (:func:`.verdict.noise_expectation`, EXCESS_Z); None when the noise is not known (no reliable SD)."""
     if not noise or not noise.get("reliable", True) or not np.isfinite(float(noise.get("sd", np.nan))):
         return None
-    infl = math.sqrt(expected_cv_inflation(ev.y.size, ev.k, int(np.unique(ev.folds).size)))
-    se = math.hypot(ev.cv_rmse_se if np.isfinite(ev.cv_rmse_se) else 0.0, float(noise.get("se") or 0.0) * infl)
-    return ev.cv_rmse, float(noise["sd"]) * infl, se
+    expect, se = noise_expectation(float(noise["sd"]), noise.get("se"), ev.cv_rmse_se, ev.y.size, ev.k,
+                                   int(np.unique(ev.folds).size))
+    return ev.cv_rmse, expect, se
 
 
 def probe_verdict(base: DynEvaluation, cands: Sequence[dict], probes: Sequence[dict], verdict: dict,
@@ -1970,10 +1970,10 @@ def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str
     else:
         fig, ax = plt.subplots(figsize=(6.4, 4.0))
     frames = res[~drift]
-    for c in RESPONSE_CLASSES + ("failed",):
+    for i, c in enumerate(RESPONSE_CLASSES + ("failed",)):
         m = frames["response_class"] == c
-        if m.any():
-            ax.plot(frames.loc[m, xcol], frames.loc[m, col], "o", ms=4, label=c)
+        if m.any():  # one colour per class in every figure, so before/after figures read alike
+            ax.plot(frames.loc[m, xcol], frames.loc[m, col], "o", ms=4, label=c, color=f"C{i}")
     ax.axhspan(-ev.sigma, ev.sigma, color="0.85", zorder=0, label="±noise SD")
     ax.set_xlabel(xcol.replace("_Hz", " [Hz]").replace("_s", " [s]"))
     what = "position residual" if ev.bound.kind == "trajectory" else "residual"

@@ -297,6 +297,17 @@ def expected_cv_inflation(n: int, k: int, n_folds: int) -> float:
     return 1.0 + k / n_train
 
 
+def noise_expectation(noise_sd: float, noise_se: float | None, cv_se: float, n: int, k: int, n_folds: int
+                      ) -> tuple[float, float]:
+    """Return (held-out RMSE expected from the noise for a model with k free parameters that misses nothing,
+    standard error of a held-out RMSE's comparison with it) [response unit]: noise_sd x sqrt(inflation)
+    (:func:`expected_cv_inflation`; NaN when the noise SD is not finite) and hypot(the held-out RMSE's own
+    standard error ``cv_se``, noise_se x sqrt(inflation))."""
+    root = math.sqrt(expected_cv_inflation(n, k, n_folds))
+    expect = noise_sd * root if np.isfinite(noise_sd) else float("nan")
+    return expect, math.hypot(cv_se if np.isfinite(cv_se) else 0.0, (noise_se or 0.0) * root)
+
+
 def measurements_needed(f_stat: float, dk: int, n: int, k1: int, alpha: float,
                         power: float = TARGET_POWER) -> int | None:
     """Return roughly how many measurements in all (same design, scaled) would make an effect like this one
@@ -500,11 +511,9 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
         tests.append(CandidateTest(c.name, F, p, pa, d, se, not why, "passes" if not why else "; ".join(why)))
 
     # expected held-out error of a model that misses nothing, and its uncertainty
-    infl = expected_cv_inflation(n, base.n_free, n_folds)
     cv_base = base.cv_rmse
-    cv_se = crossval.cv_rmse(base.sq_err, groups)[1]
-    expect = noise.sd * math.sqrt(infl) if np.isfinite(noise.sd) else float("nan")
-    comb_se = math.hypot(cv_se if np.isfinite(cv_se) else 0.0, (noise.se or 0.0) * math.sqrt(infl))
+    expect, comb_se = noise_expectation(noise.sd, noise.se, crossval.cv_rmse(base.sq_err, groups)[1], n,
+                                        base.n_free, n_folds)
     excess = noise.reliable and np.isfinite(expect) and cv_base > expect + EXCESS_Z * comb_se
     noise_txt = (f"the noise cannot be estimated (data spread {_g(noise.sd)} {unit} is only an upper bound)"
                  if not noise.reliable else
@@ -593,10 +602,8 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
                     f"p = {_g(left[0]['p_value'])}): after adding it, run diagnose again")
         elif noise.reliable and np.isfinite(noise.sd):
             # the tool's own numbers: does the winner bring the held-out error down to the noise level?
-            exp_w = noise.sd * math.sqrt(expected_cv_inflation(n, win.n_free, n_folds))
-            se_w = crossval.cv_rmse(win.sq_err, groups)[1]
-            se_w = math.hypot(se_w if np.isfinite(se_w) else 0.0,
-                              (noise.se or 0.0) * math.sqrt(expected_cv_inflation(n, win.n_free, n_folds)))
+            exp_w, se_w = noise_expectation(noise.sd, noise.se, crossval.cv_rmse(win.sq_err, groups)[1], n,
+                                            win.n_free, n_folds)
             if win.cv_rmse > exp_w + EXCESS_Z * se_w:
                 msg += (f". With it the held-out RMSE ({_g(win.cv_rmse)} {unit}) still exceeds the {_g(exp_w)} {unit} "
                         f"expected from the noise by more than {EXCESS_Z:g} standard errors ({_g(se_w)}): its form "
