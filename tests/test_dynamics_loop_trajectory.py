@@ -144,3 +144,53 @@ def test_horizon_continuation_finds_a_secondary_constraint_far_from_its_start_ga
     assert rmse <= 1.1 * noise
     assert abs(fit.theta[1] / gap_mm - 1.0) < 0.02  # G_2
     assert abs(fit.theta[2] / 97060.0 - 1.0) < 0.1  # k_b
+
+
+def _ar1(n: int, rho: float, sd: float, rng) -> np.ndarray:
+    e = np.zeros(n)
+    for j in range(n):
+        e[j] = rho * (e[j - 1] if j else 0.0) + sd * np.sqrt(1 - rho ** 2) * rng.standard_normal()
+    return e
+
+
+@pytest.mark.parametrize("rho", [0.0, 0.8])
+def test_frame_to_frame_correlated_position_noise_is_not_read_as_a_missing_effect(tmp_path, rho):
+    """A video track's position noise is often correlated from frame to frame. On null data with AR(1) noise
+    (lag-1 correlation 0.8, SD 0.1 mm) the tests along time and along the runs' drive (one per run) read the
+    noise's wander as structure: before serial_noise / record_serial the verdict was "an effect that is not
+    built in depends on time_s" (runs test), then "... on f_Hz" (lack of fit of the runs' means). With white
+    noise nothing changes: no correlation is found and nothing is missing."""
+    truth = _model(tmp_path, "truth", {"Pf_N": 0.02})
+    base = _model(tmp_path, "base", {"Pf_N": {"value": 0.03, "free": True, "bounds": [0.001, 0.2]}})
+    design = pd.DataFrame({"run": ["a", "b", "c", "d"], "f_Hz": [26.0, 32.0, 36.0, 40.0],
+                           "Pd_N": [0.15, 0.2, 0.2, 0.25], "duration_s": [0.6] * 4})
+    df = DL.synthesize_trajectory(truth, design, 1e-9, 100.0, 3).drop(columns=["magnet_mm"])
+    rng = np.random.default_rng(11)
+    for _, d in df.groupby("run"):
+        df.loc[d.index, "capsule_mm"] += _ar1(len(d), rho, 0.1, rng)
+    path = tmp_path / "ar_synthetic.csv"
+    df.to_csv(path, index=False)
+    r = DL.run_diagnose(base, df, str(path), tmp_path / "d", k_folds=4, seed=0, figures=False,
+                        budget=DL.EFFORTS["quick"], candidates=["viscous_drag"])
+    v = r["verdict"]
+    assert v["outcome"] in ("nothing_missing", "cannot_tell"), v["message"]
+    assert v["missing_effect"] is None and v["covariate"] is None
+    if rho == 0.0:
+        assert v["outcome"] == "nothing_missing" and r["noise"]["correlated"] is None
+    else:
+        c = r["noise"]["correlated"]
+        assert c["covariate"] == "time_s" and 0.6 < c["rho"] < 0.95, c
+        assert "correlated" in v["message"]
+
+
+def test_tests_along_a_runs_drive_are_serial_when_frames_are_correlated():
+    rf = pd.DataFrame({"run": np.repeat(["a", "b"], 5), "f_Hz": np.repeat([20.0, 30.0], 5),
+                       "time_s": np.tile(np.arange(5) / 100.0, 2), "Pd_N": [0.1] * 5 + [0.1, 0.2, 0.1, 0.2, 0.1]})
+    struct = [{"covariate": c, "test": t, "p_value": 1e-6, "method": "m", "serial": c == "time_s"}
+              for c in ("f_Hz", "Pd_N", "time_s") for t in ("lack_of_fit", "periodogram")]
+    corr = {"covariate": "time_s", "rho": 0.8, "_segment": np.repeat([0, 1], 5)}
+    out = {(s["covariate"], s["test"]): s["serial"] for s in DL.record_serial(struct, rf, corr)}
+    # f_Hz is constant within each run: its tests see the runs' wandering means; Pd_N varies within run b
+    assert out[("f_Hz", "lack_of_fit")] and not out[("Pd_N", "lack_of_fit")]
+    assert not out[("f_Hz", "periodogram")] and out[("time_s", "lack_of_fit")]
+    assert DL.record_serial(struct, rf, None) == struct

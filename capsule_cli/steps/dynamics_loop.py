@@ -67,7 +67,8 @@ from ..fitting import information_criteria
 from ..tables import (Column, TableSchema, is_synthetic, provenance, write_json_atomic, write_measurements,
                       write_table, write_text_atomic)
 from . import crossval
-from .residual_tests import is_ordered, noise_estimate, structure_tests
+from .residual_tests import (correct_for_correlation, is_ordered, noise_estimate, serial_correlation,
+                             structure_tests)
 from .verdict import (ALPHA_EFFECT, EXCESS_Z, RULE_TEXT, FitSummary, Noise, decide_verdict, nested_f_test,
                       noise_expectation)
 
@@ -1170,6 +1171,65 @@ def _residual_noise(noise: dict, sd: float, best: DynEvaluation, what: str, why:
                        f"difference-based estimate ({noise['sd']:.3g}), {why}")}
 
 
+def serial_noise(rf: pd.DataFrame, evs: Sequence[DynEvaluation], z) -> dict | None:
+    """Return the serial correlation of the position noise along time within each trajectory run
+    (:func:`.residual_tests.serial_correlation`: lag-1 correlation, p < 0.01), or None.
+
+    Computed on the residuals ``z(ev)`` (standardised by the error model) of the best-fitting model tried, as
+    the quasi-static loop does, so that a missing effect one candidate describes is not taken for correlated
+    noise. A video track's position noise is often correlated from frame to frame (the tracker's template
+    and the blur of a moving capsule change slowly); independent tests along time would then read the
+    noise's slow wander as structure: null data with AR(1) position noise (lag-1 correlation 0.8 at 100
+    frames/s, SD 0.2 mm, five 1.5-s runs) gave "an effect that is not built in depends on time_s" (runs test
+    p = 2.4e-14). With the correlation the rule tests along time against it (periodogram against red noise,
+    F tests on whitened residuals; residual_tests.structure_tests, verdict._rss_pair)."""
+    cols = [c for c in rf.columns if is_ordered(c)]
+    if not cols or not evs:
+        return None
+    best = min(evs, key=lambda e: float(np.nansum(np.nan_to_num(z(e)) ** 2)))
+    return serial_correlation(rf, np.nan_to_num(z(best)), cols)
+
+
+def record_serial(struct: list[dict], rf: pd.DataFrame, corr: dict | None) -> list[dict]:
+    """Return the structure records with the tests along a covariate that is constant within each record of
+    serially correlated readings (a trajectory run's drive: f_Hz, Pd_N) marked ``serial``, as
+    :func:`.residual_tests.structure_tests` marks those along time: correlated noise makes each run's mean
+    residual wander (its variance grows by about (1 + rho) / (1 - rho)), so the runs' means differ by more
+    than independent frames allow, with nothing missing (AR(1) noise, lag-1 correlation 0.74: lack of fit
+    along f_Hz p = 1e-8 on null data). A dependence on a run's drive is then told only by a candidate that
+    passes the whitened F test, or not at all ("the data cannot tell": replicate runs would)."""
+    if not corr:
+        return struct
+    seg = np.asarray(corr["_segment"])
+    if np.unique(seg).size < 2:
+        return struct
+    out = []
+    for rec in struct:
+        col = rec["covariate"]
+        if not rec.get("serial") and rec["test"] != "periodogram" and col in rf.columns:
+            per_record = rf[col].groupby(seg).nunique(dropna=False)
+            if bool((per_record <= 1).all()):
+                rec = {**rec, "serial": True,
+                       "method": rec["method"] + f" (constant within each record along {corr['covariate']})"}
+        out.append(rec)
+    return out
+
+
+def correlated_noise(noise: dict, corr: dict | None) -> dict:
+    """Return ``noise`` marked serially correlated (``corr``, :func:`serial_noise`): the method says so, and
+    the standard error of an SD estimated from residuals grows by sqrt((1 + rho^2) / (1 - rho^2)) (the
+    variance of a sample variance of AR(1) readings; Bartlett 1946), so that the held-out error is weighed
+    against the noise with the uncertainty correlated readings leave. Difference-based and replicate
+    estimates are left to :func:`.residual_tests.correct_for_correlation`."""
+    if not corr:
+        return noise
+    out = correct_for_correlation(noise, corr)
+    if not str(noise.get("method", "")).startswith(("difference-based", "replicates")):
+        rho = float(corr["rho"])
+        out["se"] = float(noise["se"]) * math.sqrt((1 + rho ** 2) / (1 - rho ** 2))
+    return out
+
+
 def standardised_residual_sd(ev: DynEvaluation) -> float:
     """Return the noise SD sigma that solves sigma^2 = sum_i r_i^2 sigma^2 / (sigma^2 + s_i^2) / (n - k):
     the residual SD of the in-sample fit under the error model (s_i the model's spread; with no spread
@@ -1434,6 +1494,8 @@ def dynamics_verdict(base: DynEvaluation, cands: Sequence[dict], noise: dict, si
     where = plain_summary(base, sigma)
     regime = None if v.outcome == "nothing_missing" else regime_of(base, sigma)
     msg = v.message
+    if base.bound.kind == "trajectory":  # a trajectory's replicate is a second run at the same drive
+        msg = msg.replace("(replicates at the same time_s)", "(a second run at the same drive)")
     if v.outcome != "nothing_missing":
         msg += (f". Where the model as is fails" + (f" (mostly where {_CLASS_WORDS[regime]})" if regime else "")
                 + f": {where}")
@@ -1777,6 +1839,9 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
     covs = [c for c in ("f_Hz", "Pd_N", "duty", "time_s") if c in rf.columns and rf[c].nunique() >= 2]
     z = lambda ev: ev.resid / np.sqrt(sigma ** 2 + np.nan_to_num(ev.sim["spread"]) ** 2)  # noqa: E731
     corr = noise.get("correlated")
+    if bound.kind == "trajectory" and not corr:
+        # frames of a video track: the camera's position noise is often correlated from frame to frame
+        corr = serial_noise(rf, [base] + [c["ev"] for c in cands], z)
     probes = []
     if bound.kind == "progression" and needs_probes(base, cands):
         # no built-in explains the data: which covariate does the missing effect depend on? (probe_verdict)
@@ -1790,11 +1855,12 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
             base = base.with_sigma(sigma)
             for c in cands + probes:
                 c["ev"] = c["ev"].with_sigma(sigma)
-    struct = structure_tests(rf, np.nan_to_num(z(base)), covs, correlation=corr)
+    struct = record_serial(structure_tests(rf, np.nan_to_num(z(base)), covs, correlation=corr), rf, corr)
     for c in cands:
-        c["structure"] = structure_tests(rf, np.nan_to_num(z(c["ev"])), covs, correlation=corr)
+        c["structure"] = record_serial(structure_tests(rf, np.nan_to_num(z(c["ev"])), covs, correlation=corr), rf,
+                                       corr)
     if bound.kind == "trajectory":
-        noise = trajectory_noise(noise, [base] + [c["ev"] for c in cands])
+        noise = correlated_noise(trajectory_noise(noise, [base] + [c["ev"] for c in cands]), corr)
         reliable = bool(noise.get("reliable", True))
         if reliable and 0 < float(noise["sd"]) < sigma:
             # the spreads (irregular runs, knife edges) weigh against the noise, not against its upper bound
@@ -1822,7 +1888,9 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
         "model": model.name, "model_file": model.path, "model_hash": model.hash, "kind": model.kind,
         "base": model.base.name, "effects": model.effect_names, "data": str(data_path), "data_hash": dh,
         "n": int(base.y.size), "unit": UNIT[model.kind], "protocol": bound.protocol.__dict__,
-        "noise": {"sd": noise["sd"], "se": noise["se"], "method": noise["method"], "reliable": reliable},
+        "noise": {"sd": noise["sd"], "se": noise["se"], "method": noise["method"], "reliable": reliable,
+                  "correlated": ({k: v for k, v in noise["correlated"].items() if not k.startswith("_")}
+                                 if noise.get("correlated") else None)},
         "model_as_is": {"cv_rmse": base.cv_rmse, "cv_rmse_se": base.cv_rmse_se, "rmse": base.rmse,
                         "bic": base.bic, "n_free": base.k, "params": param_table(base),
                         "by_response_class": by_class(base)},
