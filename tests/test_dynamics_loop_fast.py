@@ -478,3 +478,17 @@ def test_probe_at_the_noise_where_the_best_built_in_is_not_names_the_covariate()
     # the noise only bounded (not reliable): no (b')
     assert DL.probe_verdict(base, cands, [probe], verdict, "mm/s",
                             noise={"sd": 1.0, "se": 0.11, "reliable": False}) is verdict
+
+
+def test_progression_folds_hold_out_conditions_whatever_the_run_label(tmp_path):
+    """Two replicate sweeps labelled by ``run`` (each over every condition): grouped by run, a fold would predict
+    each condition from its own replicate in the other sweep, which is no test over conditions. The groups are the
+    conditions, the readings at one drive together."""
+    m = _model(tmp_path, "m", params={"Pf_N": 0.02})
+    design = pd.DataFrame({"f_Hz": [30.0, 34.0, 38.0] * 2, "Pd_N": [0.15] * 3 + [0.25] * 3})
+    df = pd.concat([design.assign(run="r1"), design.assign(run="r2")], ignore_index=True).assign(velocity_mm_s=1.0)
+    groups, how = DL.DynBound(m, df, where="t").groups()
+    np.testing.assert_array_equal(groups, np.tile(np.arange(6), 2))
+    assert how.startswith("by condition")
+    folds = crossval.assign_folds(groups, 3, 0)
+    assert all(np.unique(df["run"][folds == k]).size == 2 for k in range(3))  # every fold holds both sweeps' readings

@@ -334,8 +334,12 @@ class DynBound(FreeParams):
         return pd.DataFrame(recs)
 
     def groups(self) -> tuple[np.ndarray, str]:
+        """Return the cross-validation groups: a trajectory's runs; a progression's conditions (its readings
+        at one drive together, whatever their ``run`` label: the held-out error is over conditions, as the
+        issue asks, also when each run is a replicate sweep over every condition, where groups by run would
+        predict each condition from its own replicate)."""
         if self.kind == "progression":
-            return crossval.cv_groups(self.df, self.response)
+            return np.asarray(self.cond_index, int), "by condition (the readings at one drive together)"
         return self._groups, "by 'run'"
 
     # -- simulation
