@@ -492,3 +492,19 @@ def test_progression_folds_hold_out_conditions_whatever_the_run_label(tmp_path):
     assert how.startswith("by condition")
     folds = crossval.assign_folds(groups, 3, 0)
     assert all(np.unique(df["run"][folds == k]).size == 2 for k in range(3))  # every fold holds both sweeps' readings
+
+
+def test_a_condition_holding_most_of_the_held_out_error_is_named():
+    """One reading far off (a misread, or a knife edge) can carry a held-out RMSE: the verdict names the condition
+    and gives the held-out RMSE without it (dominant_group); under noise alone no condition is named."""
+    rng = np.random.default_rng(3)
+    design = pd.DataFrame({"f_Hz": np.tile([15.0, 20.0, 25.0, 30.0, 35.0], 4), "Pd_N": np.repeat([0.1, 0.15, 0.2, 0.25], 5)})
+    groups = np.arange(20)
+    sq = rng.standard_normal(20) ** 2
+    ev = SimpleNamespace(cv_sq=sq, groups=groups, bound=SimpleNamespace(kind="progression", df=design))
+    assert DL.dominant_group(ev) is None
+    sq[7] = 16.0 ** 2  # 16 noise SDs
+    d = DL.dominant_group(SimpleNamespace(cv_sq=sq, groups=groups, bound=ev.bound))
+    assert d["group"] == "f_Hz = 25, Pd_N = 0.15" and d["share"] > 0.8  # 256 against about 31 from the others
+    assert d["cv_rmse"] == pytest.approx(np.sqrt(sq.mean()))
+    assert d["cv_rmse_without"] == pytest.approx(np.sqrt(np.delete(sq, 7).mean()))
