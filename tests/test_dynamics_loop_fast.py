@@ -508,3 +508,18 @@ def test_a_condition_holding_most_of_the_held_out_error_is_named():
     assert d["group"] == "f_Hz = 25, Pd_N = 0.15" and d["share"] > 0.8  # 256 against about 31 from the others
     assert d["cv_rmse"] == pytest.approx(np.sqrt(sq.mean()))
     assert d["cv_rmse_without"] == pytest.approx(np.sqrt(np.delete(sq, 7).mean()))
+
+
+def test_a_covariate_measured_in_blocks_is_named_with_the_drift_it_cannot_be_told_from():
+    """A progression table with one P_d level after another cannot tell a dependence on P_d from a drift over the
+    session (AR(1) noise along the rows named Pd_N in 2 of 2 seeds): the verdict says so; a shuffled order or
+    interleaved replicates do not get the caveat, nor a table with a time column."""
+    v = {"outcome": "not_built_in", "covariate": "Pd_N", "message": "an effect that is not built in depends on Pd_N"}
+    blocks = pd.DataFrame({"f_Hz": np.tile([15.0, 20.0, 25.0], 3), "Pd_N": np.repeat([0.1, 0.2, 0.3], 3)})
+    out = DL.blocked_caveat(v, blocks)
+    assert out["blocked_in_row_order"] and "drift over the session" in out["message"]
+    assert "blocked_in_row_order" not in DL.blocked_caveat(v, pd.concat([blocks, blocks], ignore_index=True))
+    assert "blocked_in_row_order" not in DL.blocked_caveat(v, blocks.assign(time_s=np.arange(9.0)))
+    assert "blocked_in_row_order" not in DL.blocked_caveat({**v, "outcome": "missing_effect"}, blocks)
+    assert DL.blocked_in_row_order([1, 1, 2, 2]) and not DL.blocked_in_row_order([1, 2, 1, 2])
+    assert not DL.blocked_in_row_order([1, 1, 1])

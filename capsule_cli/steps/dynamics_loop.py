@@ -1250,6 +1250,33 @@ def record_serial(struct: list[dict], rf: pd.DataFrame, corr: dict | None) -> li
     return out
 
 
+def blocked_in_row_order(values) -> bool:
+    """Whether a covariate's levels each occupy one contiguous block of the table's rows (two levels or more):
+    the order of a sweep measured one level after another."""
+    v = pd.Series(values).astype(str).to_numpy()
+    levels = np.unique(v).size
+    return bool(levels >= 2 and int(np.sum(v[1:] != v[:-1])) == levels - 1)
+
+
+def blocked_caveat(verdict: dict, rf: pd.DataFrame) -> dict:
+    """Return the verdict with a caveat when it names a covariate of a progression table (not built in) whose
+    levels are blocks of the table's rows: if the readings were taken in that order, anything that drifted
+    over the session (temperature, wear, a film drying) changes with that covariate too, and a progression
+    table has no time column to tell them apart. Null data with AR(1) noise along the rows (lag-1 correlation
+    0.7, 40 conditions, one P_d level after another) gave "an effect that is not built in depends on Pd_N"
+    (lack of fit p = 7e-4 and 1.8e-3, 2 of 2 seeds). The finding stands; the message says what else it can be,
+    and ``verdict.blocked_in_row_order`` is set."""
+    cov = verdict.get("covariate")
+    if verdict.get("outcome") != "not_built_in" or not cov or cov not in rf.columns or "time_s" in rf.columns \
+            or not blocked_in_row_order(rf[cov].to_numpy()):
+        return verdict
+    return {**verdict, "blocked_in_row_order": True,
+            "message": verdict["message"] + (f". The table holds each {cov} level as one block of rows: if they "
+                                              "were measured in that order, a drift over the session would look "
+                                              f"the same (measure the {cov} levels in a shuffled order, or "
+                                              "repeat the first one at the end, to tell)")}
+
+
 def correlated_noise(noise: dict, corr: dict | None) -> dict:
     """Return ``noise`` marked serially correlated (``corr``, :func:`serial_noise`): the method says so, and
     the standard error of an SD estimated from residuals grows by sqrt((1 + rho^2) / (1 - rho^2)) (the
@@ -1915,6 +1942,7 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
                 c["ev"] = c["ev"].with_sigma(float(noise["sd"]))
     verdict = dynamics_verdict(base, cands, noise, float(noise["sd"]) if reliable else sigma, struct, covs, rf)
     verdict = probe_verdict(base, cands, probes, verdict, UNIT[model.kind], noise=noise | {"reliable": reliable})
+    verdict = blocked_caveat(verdict, rf)
     cands.sort(key=lambda c: c["ev"].cv_rmse)
     dh = data_hash(data_path)
 
