@@ -1086,7 +1086,8 @@ def dominant_group(ev: DynEvaluation) -> dict | None:
     total = float(sq.sum())
     if ids.size < DOMINANT_MIN_GROUPS or not total > 0:
         return None
-    per = np.array([sq[ev.groups == g].sum() for g in ids])
+    gi = np.searchsorted(ids, ev.groups)
+    per = np.bincount(gi, weights=sq, minlength=ids.size)
     i = int(np.argmax(per))
     share = float(per[i] / total)
     if share <= DOMINANT_SHARE:
@@ -1547,7 +1548,8 @@ def dynamics_verdict(base: DynEvaluation, cands: Sequence[dict], noise: dict, si
                str(noise.get("method", "")), noise.get("correlated"), str(noise.get("residual_of", "")))
     v = decide_verdict(base.y, summary_of(base), sums, nz, {c: rf[c].to_numpy(float) for c in covs}, struct,
                        base.groups, int(np.unique(base.folds).size),
-                       ordered=[c for c in covs if is_ordered(c)], unit=unit, response=what)
+                       ordered=[c for c in covs if is_ordered(c)], unit=unit, response=what,
+                       repeat="a second run at the same drive" if base.bound.kind == "trajectory" else None)
     tests = {t.name: t for t in v.tests}
     for c in cands:
         t = tests[c["effect"].name]
@@ -1556,8 +1558,6 @@ def dynamics_verdict(base: DynEvaluation, cands: Sequence[dict], noise: dict, si
     where = plain_summary(base, sigma)
     regime = None if v.outcome == "nothing_missing" else regime_of(base, sigma)
     msg = v.message
-    if base.bound.kind == "trajectory":  # a trajectory's replicate is a second run at the same drive
-        msg = msg.replace("(replicates at the same time_s)", "(a second run at the same drive)")
     if v.outcome != "nothing_missing":
         msg += (f". Where the model as is fails" + (f" (mostly where {_CLASS_WORDS[regime]})" if regime else "")
                 + f": {where}")

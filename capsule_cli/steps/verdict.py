@@ -229,6 +229,12 @@ def vuong_test(resid_a: np.ndarray, k_a: int, resid_b: np.ndarray, k_b: int) -> 
     return float(z), float(2 * dist.norm_sf(abs(z)))
 
 
+def residuals_of(y: np.ndarray, c: FitSummary) -> np.ndarray:
+    """Return the in-sample residuals a fit's ``rss`` is the sum of squares of: ``c.resid`` when given (dynamics:
+    standardised by the error model), else y - pred [response unit]."""
+    return y - c.pred if c.resid is None else np.asarray(c.resid, float)
+
+
 def rank_supported(y: np.ndarray, sup: Sequence[FitSummary], alpha: float = ALPHA_SEPARATE,
                    corr: dict | None = None) -> tuple[FitSummary, list[tuple[FitSummary, float]]]:
     """Return (the candidate to name, [(other candidate the data cannot tell from it, Vuong p)]).
@@ -244,13 +250,15 @@ def rank_supported(y: np.ndarray, sup: Sequence[FitSummary], alpha: float = ALPH
     """
     y = np.asarray(y, float)
     n = y.size
+    res = {id(c): residuals_of(y, c) for c in sup}
+    if corr:
+        res = {k: whitened(v, corr["_order"], corr["_segment"], float(corr["rho"])) for k, v in res.items()}
 
     def r(c: FitSummary) -> np.ndarray:
-        res = y - c.pred if c.resid is None else np.asarray(c.resid, float)
-        return res if not corr else whitened(res, corr["_order"], corr["_segment"], float(corr["rho"]))
+        return res[id(c)]
 
     def rss(c: FitSummary) -> float:
-        return c.rss if not corr else float(np.sum(r(c) ** 2))
+        return c.rss if not corr else float(r(c) @ r(c))
 
     order = sorted(sup, key=lambda c: (bool(c.at_bound), aicc(rss(c), n, c.n_free), c.n_free))
     win = order[0]
@@ -422,9 +430,7 @@ def _rss_pair(y, base: FitSummary, c: FitSummary, corr: dict | None) -> tuple[fl
     from .residual_tests import lag1_correlation
 
     o, sg = corr["_order"], corr["_segment"]
-    # the residuals the fits' rss are sums of (dynamics: standardised by the error model), else y - pred
-    rb = y - base.pred if base.resid is None else base.resid
-    rc = y - c.pred if c.resid is None else c.resid
+    rb, rc = residuals_of(y, base), residuals_of(y, c)
     rho = lag1_correlation(rc, o, sg)[0]
     rho = float(np.clip(rho if np.isfinite(rho) else 0.0, 0.0, 0.95))
     return whitened_rss(rb, o, sg, rho), whitened_rss(rc, o, sg, rho)
@@ -499,7 +505,7 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
                    covariates: Mapping[str, np.ndarray], structure: Sequence[dict], groups: np.ndarray,
                    n_folds: int, ordered: Sequence[str] = (), unit: str = "", response: str = "response",
                    alpha_effect: float = ALPHA_EFFECT, alpha_structure: float = ALPHA_STRUCTURE,
-                   pairs: Sequence[FitSummary] = ()) -> Verdict:
+                   pairs: Sequence[FitSummary] = (), repeat: str | None = None) -> Verdict:
     """Return the verdict (one of four outcomes) from the fits' arrays; pure: no files, no figures.
 
     y : observations per row [unit]; base : the model as is; candidates : model + one effect each
@@ -510,6 +516,8 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
     pairs : the model + two candidate effects at once (``members``), fitted when no single candidate passes
     but the residuals depend on a covariate (:data:`PAIR_TEXT`): a shape two built-in effects make together
     (a Stribeck drop below a power-law rise) is then named as a partial step, not as an effect to write.
+    repeat : what a replicate is, for the advice when correlated noise leaves the data undecided (default
+    "replicates at the same <covariate>"; a trajectory's is a second run at the same drive).
     """
     y = np.asarray(y, float)
     n = y.size
@@ -656,7 +664,8 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
                f"{_g(serial[0]['p_value'])}) but successive readings are correlated (lag-1 correlation "
                f"{noise.correlated['rho']:.2f}), which correlated sensor noise alone produces; no built-in candidate "
                f"passes the rule and no period stands out above the correlated-noise background. Repeat the run "
-               f"(replicates at the same {cov}) to tell a slow effect from correlated noise; {noise_txt}")
+               f"({repeat or f'replicates at the same {cov}'}) to tell a slow effect from correlated noise; "
+               f"{noise_txt}")
         return Verdict("cannot_tell", None, None, None, msg, tests=tests, structure_used=serial)
     # nothing passes: "nothing is missing" only if the numbers agree
     if noise.reliable and not excess:
