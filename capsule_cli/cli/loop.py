@@ -14,7 +14,7 @@ PLUGINS = typer.Option(None, "--plugins", help="Python file(s) registering extra
 SEED = typer.Option(0, "--seed", help="Random seed (fold assignment, multi-start, noise).")
 EFFORT = typer.Option("full", "--effort", help="Dynamics kinds (progression, trajectory): calibration budget, "
                       "'full' or 'quick' (fewer starts, evaluations and bootstrap resamples: a first look, smoke runs).")
-FOLDS = typer.Option(5, "--folds", help="Number of cross-validation folds (groups: trial/run, else identical covariates).")
+FOLDS = typer.Option(5, "--folds", help="Number of cross-validation folds (groups: trial/run, else identical covariates; progression: conditions).")
 
 
 def _load(model_path: Path, plugins: Optional[List[Path]]):

@@ -1472,6 +1472,12 @@ _CLASS_WORDS = {"no_impact": "the shell is not hit", "one_impact": "the magnet h
                 "irregular (no period up to 8)"}
 
 
+def _span(x: pd.Series) -> str:
+    """Return 'lo-hi' of a covariate's values, or the one value when they are all equal."""
+    lo, hi = float(x.min()), float(x.max())
+    return f"{lo:g}" if lo == hi else f"{lo:g}-{hi:g}"
+
+
 def plain_summary(ev: DynEvaluation, sigma: float) -> str:
     """Return where the model fails by regime and drive condition, in plain words."""
     unit = UNIT[ev.bound.kind]
@@ -1490,8 +1496,8 @@ def plain_summary(ev: DynEvaluation, sigma: float) -> str:
         mean_r = float(np.nanmean(ev.resid[bad]))
         word = "lower" if mean_r > 0 else "higher"
         what = "velocity" if ev.bound.kind == "progression" else "position"
-        where = (f"f {sub['f_Hz'].min():g}-{sub['f_Hz'].max():g} Hz, P_d {sub['Pd_N'].min():g}-"
-                 f"{sub['Pd_N'].max():g} N") if {"f_Hz", "Pd_N"} <= set(sub.columns) else ""
+        where = (f"f {_span(sub['f_Hz'])} Hz, P_d {_span(sub['Pd_N'])} N"
+                 if {"f_Hz", "Pd_N"} <= set(sub.columns) else "")
         parts.append(f"the model's {what} is {word} than measured (by {abs(mean_r):.3g} {unit} on average) in "
                      f"{int(bad.sum())} of {int(m.sum())} rows where {_CLASS_WORDS[c]} ({where})")
     if not parts:
