@@ -523,3 +523,25 @@ def test_a_covariate_measured_in_blocks_is_named_with_the_drift_it_cannot_be_tol
     assert "blocked_in_row_order" not in DL.blocked_caveat({**v, "outcome": "missing_effect"}, blocks)
     assert DL.blocked_in_row_order([1, 1, 2, 2]) and not DL.blocked_in_row_order([1, 2, 1, 2])
     assert not DL.blocked_in_row_order([1, 1, 1])
+
+
+def test_a_fit_the_engine_could_not_simulate_is_no_noise_estimate():
+    """A candidate whose fitted model fails on every row (no prediction: NaN) left no residuals, and the noise
+    bound took it as the best fit, a residual SD of 0 ('held-out RMSE 0.102 mm exceeds the 0 mm expected from
+    the noise', null trajectories, a vanishing drag the engine stopped as Zeno before EIG_SLOW_REL). Only
+    models simulated on every row bound the noise."""
+    rng = np.random.default_rng(0)
+    n, sd = 60, 0.1
+    y = sd * rng.standard_normal(n)
+    bound = SimpleNamespace(rows=[("position", 0, 0.0)] * n, model=SimpleNamespace(effect_names=["tilt_friction"]))
+
+    def ev(pred):
+        return SimpleNamespace(bound=bound, y=y, pred=pred, resid=y - pred, k=2)
+
+    ok, failed = ev(np.zeros(n)), ev(np.full(n, np.nan))
+    noise = {"sd": 1.6, "se": 0.1, "method": "difference-based", "reliable": False}
+    out = DL.trajectory_noise(noise, [failed, ok])
+    assert out["sd"] == pytest.approx(np.sqrt(np.sum(y ** 2) / (n - 2)), rel=1e-12)
+    assert "tilt_friction" in out["method"]
+    assert DL.trajectory_noise(noise, [failed]) == noise  # nothing simulated: the difference bound stands
+    assert DL.simulated_everywhere([failed, ok]) == [ok]

@@ -1171,6 +1171,13 @@ def bootstrap_intervals(ev: DynEvaluation, n: int, budget: Budget, seed: int) ->
             for i, s in enumerate(ev.bound.free)}
 
 
+def simulated_everywhere(evs: Sequence[DynEvaluation]) -> list[DynEvaluation]:
+    """Return the evaluations whose fitted model was simulated on every comparison row (a run or
+    condition the engine could not simulate has no prediction, so its residuals would leave those rows
+    out, and a fit failing everywhere would read as a perfect one: a residual SD of 0)."""
+    return [e for e in evs if bool(np.all(np.isfinite(e.pred)))]
+
+
 def trajectory_noise(noise: dict, evs: Sequence[DynEvaluation]) -> dict:
     """Return the position-noise estimate of a trajectory table: the smaller of the difference-based
     estimate and the residual SD sqrt(RSS / (n - k)) of the best-fitting model tried (in-sample).
@@ -1181,7 +1188,10 @@ def trajectory_noise(noise: dict, evs: Sequence[DynEvaluation]) -> dict:
     are the other bound. Both are upper bounds of the noise; the smaller is used and the method says which.
     """
     pos = np.array([m == "position" for m, _, _ in evs[0].bound.rows])
-    best = min(evs, key=lambda e: float(np.nansum(e.resid[pos] ** 2)))
+    evs = simulated_everywhere(evs)
+    if not evs:
+        return noise
+    best = min(evs, key=lambda e: float(np.sum(e.resid[pos] ** 2)))
     n, k = int(pos.sum()), best.k
     if n - k < MIN_NOISE_FRAMES:
         # the frames compared by position are too few to estimate the position noise from the residuals
@@ -1189,7 +1199,7 @@ def trajectory_noise(noise: dict, evs: Sequence[DynEvaluation]) -> dict:
         return {**noise, "reliable": False,
                 "method": f"{noise.get('method', '')}; frames that undersample the motion inflate it and only {n} "
                           "frames are compared by position: an upper bound of the noise"}
-    sd = math.sqrt(float(np.nansum(best.resid[pos] ** 2)) / (n - k))
+    sd = math.sqrt(float(np.sum(best.resid[pos] ** 2)) / (n - k))
     if np.isfinite(noise["sd"]) and noise["sd"] <= sd:
         return noise  # replicates (an estimate), or the smaller of two bounds (still a bound)
     return _residual_noise(noise, sd, best, f"{n} frames compared by position, {k} free parameters",
@@ -1220,9 +1230,10 @@ def serial_noise(rf: pd.DataFrame, evs: Sequence[DynEvaluation], z) -> dict | No
     p = 2.4e-14). With the correlation the rule tests along time against it (periodogram against red noise,
     F tests on whitened residuals; residual_tests.structure_tests, verdict._rss_pair)."""
     cols = [c for c in rf.columns if is_ordered(c)]
+    evs = simulated_everywhere(evs)
     if not cols or not evs:
         return None
-    best = min(evs, key=lambda e: float(np.nansum(np.nan_to_num(z(e)) ** 2)))
+    best = min(evs, key=lambda e: float(np.sum(np.nan_to_num(z(e)) ** 2)))
     return serial_correlation(rf, np.nan_to_num(z(best)), cols)
 
 
@@ -1324,7 +1335,7 @@ def progression_noise(noise: dict, evs: Sequence[DynEvaluation]) -> dict:
     """
     if str(noise.get("method", "")).startswith("replicates") or not evs:
         return noise
-    fits = [(standardised_residual_sd(e), e) for e in evs if e.y.size - e.k >= 3]
+    fits = [(standardised_residual_sd(e), e) for e in simulated_everywhere(evs) if e.y.size - e.k >= 3]
     if not fits:
         return noise
     sd, best = min(fits, key=lambda t: t[0])
