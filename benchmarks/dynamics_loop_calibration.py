@@ -9,7 +9,7 @@ quasi-static loop): a *finding* is a named effect (missing_effect) or a named co
 Usage:
     python benchmarks/dynamics_loop_calibration.py --seeds 100 [--effort quick]
         [--candidates secondary_constraint,viscous_drag] [--out benchmarks/dynamics_loop_calibration_result.json]
-        [--protocol rest|up|down] [--designs six,ten | sweep]
+        [--protocol rest|up|down] [--designs six,ten | sweep] [--kind trajectory --designs runs3,runs4]
 
 The result JSON is rewritten after every seed, so an interrupted run still reports the seeds done.
 Designs (alternating over seeds), responses periodic for the base model at P_f = 0.02 N:
@@ -18,6 +18,11 @@ Designs (alternating over seeds), responses periodic for the base model at P_f =
 and, for a continuation protocol, where the sweep's history matters (the end state handed from one frequency to
 the next decides the branch: one, several and irregular responses):
     sweep: f 15, 18, 21, 24, 27, 30 Hz x P_d 0.20, 0.25 N
+
+``--kind trajectory``: null trajectories as a camera records them (every run from rest at drive phase 0, 100
+frames per second, white position noise POS_NOISE), the runs of one design per seed:
+    runs3: 24 Hz / 0.15 N, 32 Hz / 0.20 N, 40 Hz / 0.25 N, 0.6 s each
+    runs4: 20 Hz / 0.15 N, 28 Hz / 0.15 N, 36 Hz / 0.20 N, 40 Hz / 0.25 N, 0.5 s each
 """
 from __future__ import annotations
 
@@ -50,28 +55,43 @@ DESIGNS = {
 }
 
 
-def _models(tmp: Path, start: str = "rest"):
+POS_NOISE = 0.1  # generating position noise SD of trajectories [mm]
+TRAJECTORY_DESIGNS = {
+    "runs3": pd.DataFrame({"run": ["a", "b", "c"], "f_Hz": [24.0, 32.0, 40.0], "Pd_N": [0.15, 0.20, 0.25],
+                           "duration_s": [0.6] * 3}),
+    "runs4": pd.DataFrame({"run": ["a", "b", "c", "d"], "f_Hz": [20.0, 28.0, 36.0, 40.0],
+                           "Pd_N": [0.15, 0.15, 0.20, 0.25], "duration_s": [0.5] * 4}),
+}
+
+
+def _models(tmp: Path, start: str = "rest", kind: str = "progression"):
     out = {}
     for name, params in (("truth", {"Pf_N": 0.02}),
                          ("base", {"Pf_N": {"value": 0.03, "free": True, "bounds": [0.001, 0.2]}})):
-        doc = {"kind": "progression", "base": "one_sided", "effects": [], "params": params,
-               "protocol": PROTO | {"start": start}}
+        doc = {"kind": kind, "base": "one_sided", "effects": [], "params": params}
+        if kind == "progression":
+            doc["protocol"] = PROTO | {"start": start}
         (tmp / f"{name}.yaml").write_text(yaml.safe_dump(doc))
         out[name] = build_model(tmp / f"{name}.yaml")
     return out["truth"], out["base"]
 
 
 def run(seeds: int, effort: str, candidates: list[str] | None, out: str | None, first_seed: int = 0,
-        replicates: int = 2, start: str = "rest", designs: tuple[str, ...] = ("six", "ten")) -> dict:
+        replicates: int = 2, start: str = "rest", designs: tuple[str, ...] = ("six", "ten"),
+        kind: str = "progression") -> dict:
     budget = DL.EFFORTS[effort]
     rows, t0 = [], time.perf_counter()
     rec: dict = {}
+    traj = kind == "trajectory"
     with tempfile.TemporaryDirectory() as tmpd:
         tmp = Path(tmpd)
-        truth, base = _models(tmp, start)
+        truth, base = _models(tmp, start, kind)
         for s in range(first_seed, first_seed + seeds):
             dname = designs[s % len(designs)]
-            df = DL.synthesize_progression(truth, DESIGNS[dname], NOISE, replicates, 10_000 + s)
+            if traj:
+                df = DL.synthesize_trajectory(truth, TRAJECTORY_DESIGNS[dname], POS_NOISE, 100.0, 10_000 + s)
+            else:
+                df = DL.synthesize_progression(truth, DESIGNS[dname], NOISE, replicates, 10_000 + s)
             path = tmp / f"null_{s}_synthetic.csv"
             df.to_csv(path, index=False)
             t1 = time.perf_counter()
@@ -89,11 +109,16 @@ def run(seeds: int, effort: str, candidates: list[str] | None, out: str | None, 
             from scipy import stats
             lo = float(stats.beta.ppf(0.025, findings, n - findings + 1)) if findings else 0.0
             hi = float(stats.beta.ppf(0.975, findings + 1, n - findings)) if findings < n else 1.0
-            rec = {"what": "false-alarm rate of the dynamics diagnose on null progression data",
-                   "budget_rule": ALPHA_EFFECT + ALPHA_STRUCTURE, "effort": effort,
-                   "candidates": candidates or "all applicable", "noise_sd_mm_s": NOISE, "replicates": replicates,
-                   "protocol": PROTO | {"start": start},
-                   "designs": {k: DESIGNS[k].to_dict(orient="list") for k in designs},
+            what = {"what": f"false-alarm rate of the dynamics diagnose on null {kind} data",
+                    "budget_rule": ALPHA_EFFECT + ALPHA_STRUCTURE, "effort": effort,
+                    "candidates": candidates or "all applicable"}
+            if traj:
+                what |= {"position_noise_sd_mm": POS_NOISE, "frame_rate_Hz": 100.0,
+                         "designs": {k: TRAJECTORY_DESIGNS[k].to_dict(orient="list") for k in designs}}
+            else:
+                what |= {"noise_sd_mm_s": NOISE, "replicates": replicates, "protocol": PROTO | {"start": start},
+                         "designs": {k: DESIGNS[k].to_dict(orient="list") for k in designs}}
+            rec = {**what,
                    "data_sets": n, "findings": findings, "finding_rate": findings / n, "finding_rate_ci95": [lo, hi],
                    "outcomes": dict(outcomes), "seconds": time.perf_counter() - t0, "runs": rows}
             if out:
@@ -113,14 +138,23 @@ def main() -> None:
                     help="values per condition (1: no replicates, the noise then comes from the fits' residuals)")
     ap.add_argument("--protocol", default="rest", choices=("rest", "up", "down"),
                     help="how the data were run (and the model file says so)")
-    ap.add_argument("--designs", default="six,ten", help=f"comma-separated, alternating over seeds: {sorted(DESIGNS)}")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "dynamics_loop_calibration_result.json"))
+    ap.add_argument("--kind", default="progression", choices=("progression", "trajectory"),
+                    help="null progression speeds, or null trajectories (designs runs3,runs4)")
+    ap.add_argument("--designs", default=None,
+                    help=f"comma-separated, alternating over seeds: {sorted(DESIGNS)} (progression; default six,ten) "
+                         f"or {sorted(TRAJECTORY_DESIGNS)} (trajectory; default both)")
+    ap.add_argument("--out", default=None, help="result JSON (default benchmarks/dynamics_loop_calibration_result.json, "
+                                                "_trajectory_result.json for --kind trajectory)")
     a = ap.parse_args()
     cands = [c for c in a.candidates.split(",") if c] or None
-    designs = tuple(d for d in a.designs.split(",") if d)
-    if not designs or any(d not in DESIGNS for d in designs):
-        ap.error(f"--designs: choose from {sorted(DESIGNS)}")
-    run(a.seeds, a.effort, cands, a.out, a.first_seed, a.replicates, a.protocol, designs)
+    table = TRAJECTORY_DESIGNS if a.kind == "trajectory" else DESIGNS
+    designs = tuple(d for d in (a.designs or ",".join(table if a.kind == "trajectory" else ("six", "ten"))).split(",")
+                    if d)
+    if not designs or any(d not in table for d in designs):
+        ap.error(f"--designs: choose from {sorted(table)}")
+    out = a.out or str(ROOT / "benchmarks" / ("dynamics_loop_calibration_trajectory_result.json"
+                                              if a.kind == "trajectory" else "dynamics_loop_calibration_result.json"))
+    run(a.seeds, a.effort, cands, out, a.first_seed, a.replicates, a.protocol, designs, a.kind)
 
 
 if __name__ == "__main__":
