@@ -703,9 +703,9 @@ GM_SLIP, GM_PSTICK, GM_PSLIDE = 0, 1, 2
 N_GM_KEYS = 30  # 3 contacts x 5 (slip +/-, patch stick, patch slide +/-) x 2 (tilt level on / held at 0)
 EIG_COND_MAX = 1e8  # eigenvector condition above which a mode is integrated on the adaptive path
 #: a core eigenvalue below EIG_SLOW_REL x the oscillatory scale (the largest |eigenvalue| of a complex pair) sends
-#: the mode to the adaptive path. The exact
-#: solution adds the particular solution of the constant forcing, ~ b0 / lambda in V_c and ~ b0 / lambda^2 in X_c,
-#: to a homogeneous part that cancels it; near lambda = 0 the rounding of that cancellation is the error. A
+#: the mode to the adaptive path. The exact solution adds the particular solution of the constant forcing,
+#: ~ b0 / lambda in V_c and ~ b0 / lambda^2 in X_c, to a homogeneous part that cancels it; near lambda = 0 the
+#: rounding of that cancellation is the error. A
 #: vanishing viscous drag makes such a mode (lambda = -c_v / M_c): at c_v = 1e-9-3e-6 N s/m the shell position
 #: was off the solve_ivp reference by 2e-6 to 3e-2 m after 12-20 periods, slip ends by up to 4e-5 s, and some runs
 #: stopped as Zeno (c_v = 3e-8 N s/m at 24 Hz); on the adaptive path 1e-12 m (measured, session 19). At the

@@ -323,8 +323,7 @@ class DynBound(FreeParams):
             rec["compared"] = mode
             if mode == "average_velocity":
                 d = dict(self.runs)[r]
-                rec["time_s"] = run_drift(d["time_s"].to_numpy(float), d["time_s"].to_numpy(float),
-                                          self.run_drive[r][0])[0]
+                rec["time_s"] = whole_periods_s(float(d["time_s"].max()), self.run_drive[r][0])
             recs.append(rec)
         return pd.DataFrame(recs)
 
@@ -532,17 +531,23 @@ class DynBound(FreeParams):
 PREDICTABLE_SPREAD_MM = 0.05
 
 
+def whole_periods_s(t_max_s: float, f_Hz: float) -> float:
+    """Return T = k / f [s], the end of the last whole drive period by ``t_max_s`` (at least one period)."""
+    return max(int(math.floor(t_max_s * f_Hz + 1e-9)), 1) / f_Hz
+
+
 def run_drift(t_s: np.ndarray, x_mm: np.ndarray, f_Hz: float) -> tuple[float, float]:
-    """Return (T [s], x(T) - x(0) [mm]): a trajectory run's drift over its whole drive periods from rest, T = k / f
-    the end of the last whole period within the frames, the positions linearly interpolated between the frames
-    around 0 and T. The observed drift and the model's are both taken this way, the model's from its positions at
-    the run's own frames: interpolating between frames 10 ms apart, across the capsule's steps, biases the drift
-    (24 Hz, P_d 0.15 N, 100 frames/s: -42.685 mm interpolated at T = 14 / 24 s against -42.809 exact), and an
-    exact model drift against an interpolated observed one read that bias as a misfit (null trajectories: the
-    irregular 24 Hz run's row 2.1-3.3 noise SDs off in every seed, tilt_friction named in 4 of 27 data sets, by an F test on that row)."""
+    """Return (T [s], x(T) - x(0) [mm]): a trajectory run's drift over its whole drive periods from rest
+    (T: :func:`whole_periods_s` of its last frame), the positions linearly interpolated between the frames
+    around 0 and T. The observed drift and the model's are both taken this way, the model's from its positions
+    at the run's own frames: interpolating between frames 10 ms apart, across the capsule's steps, biases the
+    drift (24 Hz, P_d 0.15 N, 100 frames/s: -42.685 mm interpolated at T = 14 / 24 s against -42.809 exact),
+    and an exact model drift against an interpolated observed one read that bias as a misfit (null
+    trajectories: the irregular 24 Hz run's row 2.1-3.3 noise SDs off in every seed, tilt_friction named by
+    the F test in 4 of 27 data sets)."""
     o = np.argsort(t_s, kind="stable")
     t, x = np.asarray(t_s, float)[o], np.asarray(x_mm, float)[o]
-    T = max(int(math.floor(t.max() * f_Hz + 1e-9)), 1) / f_Hz
+    T = whole_periods_s(float(t.max()), f_Hz)
     return T, float(np.interp(T, t, x) - np.interp(0.0, t, x))
 
 
