@@ -489,7 +489,7 @@ class DynBound(FreeParams):
             raise
         except (InputError, RuntimeError, ValueError, FloatingPointError):
             return {"pred": pred, "spread": spread, "cls": cls, "by_position": by_position}
-        pos, drift = {}, {}
+        pos = {}
         try:
             for j, (mode, r, i) in enumerate(self.rows):
                 if need is not None and r not in need:
@@ -507,10 +507,13 @@ class DynBound(FreeParams):
                     pred[j] = pos[r].get(i, np.nan)
                     spread[j] = 0.0
                 else:  # drift over the run's whole periods from rest, taken from the model's positions at the
-                    # run's frames as the observed one is from the data's (run_drift); spread from the window SD
-                    tt = np.sort(d["time_s"].to_numpy(float))
-                    tr = dsys.trajectory(sysm, f, pdn, tt, duty=duty, waveform=wf, options=self.options)
-                    dur, pred[j] = run_drift(tt, tr[self.response], f)
+                    # run's frames as the observed one is from the data's (run_drift); spread from the window SD.
+                    # A run also compared by position up to its horizon was simulated at every frame above
+                    if r not in pos or len(pos[r]) < len(d):
+                        tr = dsys.trajectory(sysm, f, pdn, d["time_s"].to_numpy(float), duty=duty, waveform=wf,
+                                             options=self.options)
+                        pos[r] = pd.Series(tr[self.response], index=d.index)
+                    dur, pred[j] = run_drift(d.loc[pos[r].index, "time_s"].to_numpy(float), pos[r].to_numpy(float), f)
                     spread[j] = ((s["window_sd_mm_s"] / 2) * dur if s and s["response_class"] == "irregular"
                                  else 0.0)
         except (InputError, RuntimeError, ValueError, FloatingPointError):
