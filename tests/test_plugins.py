@@ -106,6 +106,22 @@ def test_plugin_is_listed_by_effects_list(tmp_path, capsys, clean_registry):
     assert eff["params"][0]["name"] == "thermal_slope_mN" and eff["params"][0]["unit"] == "mN"
 
 
+def test_an_effect_declares_the_effects_it_contains_and_effects_list_says_so(tmp_path, capsys, clean_registry):
+    plug = tmp_path / "law.py"
+    plug.write_text("from capsule_cli.effects import Param, register_effect\n"
+                    "register_effect(name='my_law', kind='friction', covariates=('speed_mm_s',), nests=(('viscous', "
+                    "'m = 1'),),\n params=(Param('m', 1.0, (0.1, 3.0), 1.0), Param('g_mN', 1.0, (0.0, 9.0), 0.0)))"
+                    "(lambda y, x, p, c: y + p['g'] * x['speed'] ** p['m'])\n")
+    assert main(["effects", "list", "--kind", "friction", "--plugins", str(plug), "--json"]) == 0
+    eff = {e["name"]: e for e in json.loads(capsys.readouterr().out)["effects"]}
+    assert eff["my_law"]["nests"] == [{"effect": "viscous", "at": "m = 1"}]
+    assert eff["speed_power_law"]["nests"] == [{"effect": "viscous", "at": "n = 1, c = a"}]
+    assert eff["viscous"]["nests"] == []
+    assert registry.get_effect("trajectory", "speed_dependent_friction").nests == (("viscous_drag", "n = 1, c_v = a"),)
+    assert main(["effects", "list", "--kind", "friction", "--plugins", str(plug)]) == 0
+    assert "contains viscous at m = 1;" in capsys.readouterr().out
+
+
 @pytest.mark.parametrize("src, what", [
     ("def broken(:\n", "syntax error"),
     ("from capsule_cli.effects import Param, register_effect\n"
@@ -114,6 +130,9 @@ def test_plugin_is_listed_by_effects_list(tmp_path, capsys, clean_registry):
     ("from capsule_cli.effects import register_effect\n"
      "register_effect(name='y', kind='frictionx')(lambda y, x, p, c: y)\n", "unknown kind"),
     ("x = 1\n", "registers no effect"),
+    ("from capsule_cli.effects import Param, register_effect\n"
+     "register_effect(name='z', kind='friction', nests=(('viscous',),))(lambda y, x, p, c: y)\n",
+     "nests must be pairs"),
 ])
 def test_bad_plugin_exits_2_with_one_line(tmp_path, capsys, clean_registry, src, what):
     plug = tmp_path / "bad.py"

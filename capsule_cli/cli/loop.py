@@ -208,6 +208,7 @@ def register(app: typer.Typer) -> None:
             "effects": [{"name": e.name, "kind": e.kind, "origin": e.origin, "covariates": list(e.covariates),
                          "bases": list(e.bases), "description": e.description, "source": e.source,
                          "repeatable": e.repeatable, "role": e.role,
+                         "nests": [{"effect": a, "at": b} for a, b in e.nests],
                          "params": [prm(p) for p in e.params]} for e in effects(kind)],
         }
         if as_json:
@@ -227,6 +228,7 @@ def register(app: typer.Typer) -> None:
                 needs = f" needs {', '.join(e['covariates'])};" if e["covariates"] else ""
                 only = f" base {'/'.join(e['bases'])} only;" if e["bases"] else ""
                 rep = f" repeatable as {e['name']}_2, {e['name']}_3 ...;" if e["repeatable"] else ""
+                rep += "".join(f" contains {x['effect']} at {x['at']};" for x in e["nests"])
                 role = {"drive": " drive transform;",
                         "force": " plugin force (numba, adaptive path);"}.get(e["role"], "")
                 typer.echo(f"effect {e['name']} ({e['origin']};{role}{needs}{only}{rep} source: {e['source']})")

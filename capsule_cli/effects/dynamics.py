@@ -110,7 +110,10 @@ for _kind in KINDS:
                       description="rise of the kinetic level at |V_c| = 1 mm/s"),
                 Param("n", 0.25, (0.05, 2.0), off=0.25,
                       description="exponent of the speed law (irrelevant when a = 0)")),
-        covariates=(), apply=_not_a_transform))
+        covariates=(), apply=_not_a_transform,
+        # at n = 1 the law adds a |V_c| (a in mN per mm/s = N s/m) while the shell slides: viscous_drag with
+        # c_v = a, up to the breakaway's a V_min (V_min = 0.2 mm/s: 0.02 mN at a = 0.1 N s/m)
+        nests=(("viscous_drag", "n = 1, c_v = a"),)))
 
     register_effect(Effect(
         name="secondary_constraint", kind=_kind,

@@ -69,6 +69,7 @@ register_effect(Effect(
     params=(Param("a_mN", 5.0, (0.0, 1e5), 0.0, description="friction rise at V = 1 mm/s"),
             Param("n", 0.5, (0.05, 3.0), 1.0, description="speed exponent")),
     covariates=("speed_mm_s",), apply=_power_law, guess=_power_law_guess,
+    nests=(("viscous", "n = 1, c = a"),),  # a mN at 1 mm/s = a N s/m
 ))
 
 

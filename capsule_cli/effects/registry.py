@@ -158,6 +158,11 @@ class Effect:
     #: whether a model may hold it more than once (a physical series: a second Maxwell arm); the k-th
     #: instance is the effect ``<name>_<k>`` with parameters ``<param>_<k>`` (see :func:`effect_instance`)
     repeatable: bool = False
+    #: other effects of the kind this one contains as a special case, each as (effect name, the setting of this
+    #: one's parameters where it reduces to that one, in words), e.g. ``(("viscous_drag", "n = 1"),)``: the
+    #: verdict compares such a pair by the nested F test, not by Vuong's test of non-nested fits, and names
+    #: the simpler one unless the richer fits significantly better (:func:`capsule_cli.steps.verdict.rank_supported`)
+    nests: tuple[tuple[str, str], ...] = ()
 
     def applicable(self, columns: Iterable[str], base: str | None = None) -> bool:
         """Return True when every covariate the effect needs is in ``columns`` (and the base fits)."""
@@ -216,7 +221,7 @@ def _check_params(owner: str, params: Sequence[Param], is_effect: bool) -> None:
 def register_effect(effect: Effect | None = None, *, name: str | None = None, kind: str | None = None,
                     params: Sequence[Param] = (), covariates: Sequence[str] = (), description: str = "",
                     source: str = "", guess: GuessFn | None = None, bases: Sequence[str] = (), role: str = "",
-                    repeatable: bool = False):
+                    repeatable: bool = False, nests: Sequence[tuple[str, str]] = ()):
     """Register an effect; use as ``register_effect(Effect(...))`` or as a decorator.
 
     As a decorator the function is ``apply(y, x, p, ctx) -> y`` (see the module doc)::
@@ -227,7 +232,8 @@ def register_effect(effect: Effect | None = None, *, name: str | None = None, ki
             return y + p["k"] * (x["temperature"] - 37.0)
 
     ``repeatable=True`` lets a model hold the effect more than once (``<name>_2`` with parameters
-    ``<param>_2``, see :func:`effect_instance`). Raises ValueError on a bad registration (unknown kind, a parameter without
+    ``<param>_2``, see :func:`effect_instance`). ``nests`` names effects this one contains as a special case
+    (``(("viscous", "n = 1"),)``; see :attr:`Effect.nests`). Raises ValueError on a bad registration (unknown kind, a parameter without
     bounds/off, a name clash with another effect of the kind).
     """
     if effect is not None:
@@ -240,7 +246,7 @@ def register_effect(effect: Effect | None = None, *, name: str | None = None, ki
         eff = Effect(name=name or fn.__name__, kind=kind or "", description=description or (fn.__doc__ or "").strip(),
                      source=source or "user plugin", params=tuple(params), covariates=tuple(covariates),
                      apply=fn, guess=guess, bases=tuple(bases), origin=_CURRENT_ORIGIN[-1], role=role,
-                     repeatable=bool(repeatable))
+                     repeatable=bool(repeatable), nests=tuple(tuple(x) if isinstance(x, (list, tuple)) else x for x in nests))
         _add_effect(eff)
         return fn
 
@@ -262,6 +268,10 @@ def _add_effect(eff: Effect) -> None:
                          "\"force\" for an extra force)")
     if eff.role and eff.repeatable:
         raise ValueError(f"effect '{eff.name}': a drive transform or force cannot be repeatable")
+    if any(not (isinstance(pair, tuple) and len(pair) == 2 and all(isinstance(v, str) for v in pair))
+           or pair[0] == eff.name for pair in eff.nests):
+        raise ValueError(f"effect '{eff.name}': nests must be pairs (another effect's name, the setting where "
+                         "this one reduces to it, in words)")
     if eff.role and eff.kind not in ("progression", "trajectory"):
         raise ValueError(f"effect '{eff.name}': a drive transform or force is a progression or trajectory effect")
     for cov in eff.covariates:

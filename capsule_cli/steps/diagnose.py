@@ -137,9 +137,11 @@ def fit_candidate(model: Model, eff: Effect, df: pd.DataFrame, base: Evaluation,
     return Candidate(eff, m2, ev, d, se, ev.bic - base.bic)
 
 
-def summary(ev: Evaluation, name: str = "", covariates=(), structure=None) -> FitSummary:
-    """Return the arrays :func:`decide_verdict` needs from one evaluation."""
-    return FitSummary(name, len(ev.bound.free), ev.rss, ev.pred, ev.sq_err, tuple(covariates), structure or [])
+def summary(ev: Evaluation, name: str = "", covariates=(), structure=None, nests=()) -> FitSummary:
+    """Return the arrays :func:`decide_verdict` needs from one evaluation (``nests``: the effect's
+    :attr:`~capsule_cli.effects.registry.Effect.nests`)."""
+    return FitSummary(name, len(ev.bound.free), ev.rss, ev.pred, ev.sq_err, tuple(covariates), structure or [],
+                      nests=tuple(nests))
 
 
 def fit_pair(model: Model, a: Candidate, b: Candidate, df: pd.DataFrame, base: Evaluation, seed: int
@@ -250,7 +252,7 @@ def compute_verdict(df: pd.DataFrame, resp: str, base: Evaluation, cands: list[C
         if c.structure is None:
             c.structure = structure_tests(df, c.ev.resid, covs, correlation=noise.get("correlated"))
         own = [x for x in covs if base_name(x) in {base_name(e) for e in c.effect.covariates}]
-        sm = summary(c.ev, c.effect.name, own, c.structure)
+        sm = summary(c.ev, c.effect.name, own, c.structure, c.effect.nests)
         sm.at_bound = tuple(k for k, p in param_table(c.ev).items()
                             if p.get("owner") == c.effect.name and p.get("at_bound"))
         sums.append(sm)

@@ -1537,7 +1537,7 @@ def plain_summary(ev: DynEvaluation, sigma: float) -> str:
 
 
 def summary_of(ev: DynEvaluation, name: str = "", covariates: Sequence[str] = (), structure=None,
-               at_bound: Sequence[str] = ()) -> FitSummary:
+               at_bound: Sequence[str] = (), nests: Sequence[tuple[str, str]] = ()) -> FitSummary:
     """Return the arrays :func:`.verdict.decide_verdict` needs from one dynamics evaluation.
 
     The residual sum of squares and the held-out squared errors are the standardised ones
@@ -1551,7 +1551,7 @@ def summary_of(ev: DynEvaluation, name: str = "", covariates: Sequence[str] = ()
     r = ev.y - ev.pred
     std_r = np.where(np.isfinite(r), np.sign(np.nan_to_num(r)) * np.sqrt(sq), np.sqrt(sq))
     return FitSummary(name, ev.k, ev.rss, ev.pred, ev.cv_sq, tuple(covariates), list(structure or []),
-                      tuple(at_bound), resid=std_r)
+                      tuple(at_bound), resid=std_r, nests=tuple(nests))
 
 
 def dynamics_verdict(base: DynEvaluation, cands: Sequence[dict], noise: dict, sigma: float, struct: list[dict],
@@ -1574,7 +1574,8 @@ def dynamics_verdict(base: DynEvaluation, cands: Sequence[dict], noise: dict, si
     for c in cands:
         ev = c["ev"]
         own = [x for x in covs if x in set(c["effect"].covariates)]
-        sums.append(summary_of(ev, c["effect"].name, own, c.get("structure"), box_edges(ev, c["effect"].name)))
+        sums.append(summary_of(ev, c["effect"].name, own, c.get("structure"), box_edges(ev, c["effect"].name),
+                               nests=c["effect"].nests))
         c["delta_cv"], c["delta_cv_se"] = crossval.paired_difference(base.cv_sq, ev.cv_sq, base.groups)
         c["delta_bic"] = ev.bic - base.bic
     nz = Noise(float(sigma), float(noise.get("se") or 0.0), bool(noise.get("reliable", True)),
