@@ -17,7 +17,9 @@ import pytest
 import yaml
 
 from capsule_cli.effects import registry
+from capsule_cli.dynamics import system as dsys
 from capsule_cli.effects.model import build_model
+from capsule_cli.errors import InputError
 from capsule_cli.steps import crossval
 from capsule_cli.steps import dynamics_loop as DL
 from capsule_cli.steps.diagnose import all_effects
@@ -562,3 +564,75 @@ def test_a_drift_row_is_taken_from_the_model_at_the_frames_as_from_the_data(tmp_
     t = df["time_s"].to_numpy(float)
     T, drift = DL.run_drift(t[::-1], df["capsule_mm"].to_numpy(float)[::-1], 24.0)  # frames in any order
     assert T == pytest.approx(14 / 24.0, rel=1e-15) and drift == pytest.approx(b.observed()[0], rel=1e-15)
+# --------------------------------------------------------------------------- a friction level set by the drive
+
+
+# nine conditions, three amplitudes (a probe needs three levels of its covariate), periodic for these models
+PD3_DESIGN = pd.DataFrame({"f_Hz": np.tile([30.0, 34.0, 38.0], 3), "Pd_N": np.repeat([0.08, 0.10, 0.12], 3)})
+
+
+def test_a_friction_level_given_per_condition_is_simulated_in_one_batch_as_one_system_each():
+    """dsys.progression with P_f per condition equals each condition run with its own system (exact)."""
+    sysm = dsys.build_system("one_sided", {"Pf_N": 0.02})
+    f, pd_ = PD3_DESIGN["f_Hz"].to_numpy(), PD3_DESIGN["Pd_N"].to_numpy()
+    pfs = 0.02 * (pd_ / 0.1) ** 0.7
+    proto = dsys.Protocol(**PROTO)
+    one = dsys.progression(sysm, f, pd_, protocol=proto, Pf_N=pfs)["velocity_mm_s"].to_numpy()
+    each = [dsys.progression(dsys.build_system("one_sided", {"Pf_N": float(p)}), [fi], [pi],
+                             protocol=proto)["velocity_mm_s"].iloc[0] for fi, pi, p in zip(f, pd_, pfs)]
+    assert np.max(np.abs(one - np.array(each))) < 1e-12
+    assert np.ptp(one) > 5.0  # the levels matter: the speeds differ by more than noise
+    with pytest.raises(InputError, match="Pf_N per condition"):
+        dsys.progression(sysm, f, pd_, protocol=proto, Pf_N=np.r_[pfs[:-1], -1.0])
+
+
+def test_a_friction_level_that_depends_on_the_drive_amplitude_is_named_by_its_covariate(tmp_path):
+    """P_f rising as P_d^0.7 (not built in; data made through a Pf_N column, then the column dropped): no built-in
+    explains it, nor does the drive probe on P_d (the gap makes the dynamics other than scale-free); the
+    friction probe does, and the verdict names Pd_N."""
+    truth = _model(tmp_path, "truth_pfpd", params={"Pf_N": 0.02})
+    design = PD3_DESIGN.assign(Pf_N=0.02 * (PD3_DESIGN["Pd_N"] / 0.1) ** 0.7)
+    df = DL.synthesize_progression(truth, design, NOISE, 2, 5).drop(columns=["Pf_N"])
+    path = tmp_path / "pfpd_synthetic.csv"
+    df.to_csv(path, index=False)
+    base = _model(tmp_path, "base", params={"Pf_N": FREE_PF})
+    r = DL.run_diagnose(base, df, str(path), tmp_path / "diag", k_folds=3, seed=5, figures=False, budget=QUICK,
+                        candidates=CANDIDATES)
+    v = r["verdict"]
+    assert v["outcome"] == "not_built_in" and v["covariate"] == "Pd_N", v["message"]
+    assert v["probe"] == "probe_friction_Pd_N" and "friction level scaled" in v["message"]
+    fric = next(p for p in r["covariate_probes"] if p["probe"] == "probe_friction_Pd_N")
+    assert fric["cv_rmse"] <= 1.2 * NOISE  # held out at the noise level (0.447 mm/s at this seed)
+    assert abs(fric["params"]["friction_Pd_exponent"]["value"] - 0.7) < 0.1
+
+
+def test_a_table_column_beside_the_drive_is_a_covariate_and_gets_its_own_probe(tmp_path):
+    """A friction level that rises with a temperature recorded beside the drive (not built in; a column of the
+    table, random over the readings): the residuals are tested against the column, no built-in nor drive probe
+    explains the data, the column's friction probe exp(b (T - median) / half-range) does, and the verdict names
+    temperature_C. The columns the loop reads as covariates: the drive first, then the table's own, never the
+    responses or a given friction level."""
+    rf = pd.DataFrame({"f_Hz": [30.0, 34.0, 38.0], "Pd_N": [0.1] * 3, "velocity_mm_s": [1.0, 2.0, 3.0],
+                       "temperature_C": [35.0, 36.0, 37.0], "Pf_N": [0.01, 0.02, 0.03], "run": ["a", "b", "c"],
+                       "magnet_mm": [0.1, 0.2, 0.3], "mucus_mm": [0.2, 0.2, 0.2]})
+    assert DL.dynamics_covariates(rf, "velocity_mm_s") == ["f_Hz", "temperature_C"]
+    truth = _model(tmp_path, "truth_temp", params={"Pf_N": 0.02})
+    rng = np.random.default_rng(5)
+    rows = PD3_DESIGN.loc[PD3_DESIGN.index.repeat(2)].reset_index(drop=True)
+    temp = rng.uniform(33.0, 39.0, len(rows)).round(1)
+    df = DL.synthesize_progression(truth, rows.assign(Pf_N=0.02 * np.exp(0.25 * (temp - 36.0) / 3.0)), NOISE, 1,
+                                   5).drop(columns=["Pf_N"]).assign(temperature_C=temp)
+    path = tmp_path / "temp_synthetic.csv"
+    df.to_csv(path, index=False)
+    base = _model(tmp_path, "base", params={"Pf_N": FREE_PF})
+    r = DL.run_diagnose(base, df, str(path), tmp_path / "diag", k_folds=3, seed=5, figures=False, budget=QUICK,
+                        candidates=CANDIDATES)
+    v = r["verdict"]
+    assert v["outcome"] == "not_built_in" and v["covariate"] == "temperature_C", v["message"]
+    assert v["probe"] == "probe_friction_temperature_C"
+    assert {s["covariate"] for s in r["residual_structure"]} >= {"f_Hz", "Pd_N", "temperature_C"}
+    probe = [p for p in r["covariate_probes"] if p["probe"] == "probe_friction_temperature_C"]
+    assert len(probe) == 1  # one probe per column, also when an earlier table left one in the registry
+    # the median and half-range of this draw make the truth's slope b = 0.25 x (half-range / 3 C), ~0.25
+    assert abs(probe[0]["params"]["friction_temperature_slope"]["value"] - 0.25) < 0.05
+    assert probe[0]["cv_rmse"] < r["model_as_is"]["cv_rmse"] / 5  # 12.3 -> 0.79 mm/s at this seed

@@ -149,6 +149,8 @@ def plugin_roles(effects: Sequence[str], full: Mapping[str, float], where: str =
         eff = get_effect("progression", name, where)
         if eff.role == "drive":
             transforms.append((eff, {prm.key: full[prm.name] * si_factor(prm.name) for prm in eff.params}))
+        elif eff.role == "friction":
+            continue  # a friction level per condition from a covariate: the caller's (dynamics_loop.DynBound)
         elif eff.role == "force":
             forces.append((eff.kind, eff.name, tuple(full[prm.name] * si_factor(prm.name) for prm in eff.params)))
         elif eff.origin != "built-in":
@@ -258,8 +260,11 @@ def summarize_periods(per: np.ndarray, f_Hz: float) -> dict:
 
 def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmonic",
                 protocol: Protocol = Protocol(), options: EngineOptions | None = None,
-                start_offset_m=None) -> pd.DataFrame:
+                start_offset_m=None, Pf_N=None) -> pd.DataFrame:
     """Return one row per condition (same order as the inputs) of the steady progression.
+
+    Pf_N: Coulomb friction level P_f [N] per condition (scalar or one per condition) instead of the
+    system's (a table's ``Pf_N`` column, or a level that depends on a covariate); None: the system's.
 
     start_offset_m: magnet-to-shell displacement x_r [m] (scalar or one per condition) added to each
     condition's starting state, to estimate a response's spread over starting states (multistable or
@@ -284,7 +289,15 @@ def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmo
                                      "window_sd_mm_s"])
     # steady state only: a settled transient ends early (STEADY_SETTLE_TOL unless the options say otherwise)
     opts = replace(options or EngineOptions(settle_tol=STEADY_SETTLE_TOL), energy=False).pack()
-    P = np.stack([system.params_row(d) for d in drives])
+    if Pf_N is None:
+        P = np.stack([system.params_row(d) for d in drives])
+    else:
+        pfs = np.broadcast_to(np.asarray(Pf_N, float), (n,))
+        bad = ~((pfs > 0) & np.isfinite(pfs))
+        if bad.any():
+            raise InputError(f"Pf_N per condition must be finite and > 0 N, got {pfs[bad][0]}")
+        P = np.stack([pack_params(system.model, d, friction_preset("coulomb", float(pf)))
+                      for d, pf in zip(drives, pfs)])
     ntr, nrec = int(protocol.transient_periods), int(protocol.recorded_periods)
     fr = system.friction()
     results: list = [None] * n

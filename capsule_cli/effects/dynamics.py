@@ -47,6 +47,8 @@ Choices made here where physics.md leaves them open (tested in tests/test_dynami
 """
 from __future__ import annotations
 
+import math
+
 from ..config import load_param_set
 from ..errors import InputError
 from .registry import BaseModel, Effect, Param, register_base, register_effect, register_probe
@@ -201,3 +203,54 @@ for _kind in KINDS:
                     Param(f"drive_{_cov.split('_')[0]}_exponent", 0.0, (-3.0, 3.0), off=0.0,
                           description=f"exponent b of the drive scale ({_cov} / reference)^b")),
             apply=_probe_apply(_cov), origin="probe"))
+
+
+def _friction_probe_apply(cov: str):
+    ref = PROBE_REFERENCE[cov]
+    key = f"friction_{cov.split('_')[0]}_exponent"
+
+    def apply(x, p):
+        return (float(x) / ref) ** p[key]
+    return apply
+
+
+for _cov in PROBE_REFERENCE:
+    _u = _cov.split("_")[1]
+    register_probe(Effect(
+        name=f"probe_friction_{_cov}", kind="progression", role="friction", covariates=(_cov,),
+        description=(f"Covariate probe, not a physical model: the friction level scaled by a power of {_cov}, "
+                     f"P_f ({_cov} / {PROBE_REFERENCE[_cov]:g} {_u})^b (P_f keeps its meaning at the reference). "
+                     "diagnose fits it, beside the drive probe, when no built-in effect explains the data: a "
+                     f"friction that depends on the drive (a load or a rate that moves with {_cov}) is not a drive "
+                     "force scaled, as the gap makes the dynamics other than scale-free. Off: b = 0."),
+        source="capsule-cli diagnose (covariate probe); no seed",
+        params=(Param(f"friction_{_cov.split('_')[0]}_exponent", 0.0, (-3.0, 3.0), off=0.0,
+                      description=f"exponent b of the friction level's scale ({_cov} / reference)^b"),),
+        apply=_friction_probe_apply(_cov), origin="probe"))
+
+
+def column_friction_probe(column: str, reference: float, scale: float) -> Effect:
+    """Register and return the friction probe of a table's own covariate ``column`` (a temperature, a mucus
+    layer's thickness: anything recorded beside the drive), for diagnose: the friction level scaled as
+    exp(b (x - reference) / scale), b free in [-3, 3] (a factor e^{+-3} across one ``scale`` of the column),
+    reference and scale taken from the table (its median and half its range, in the column's unit), so that
+    P_f keeps its meaning at the reference. A probe, not a physical model: it only says which covariate an effect
+    that is not built in depends on. Off: b = 0."""
+    from ..units import split_unit
+
+    word = split_unit(column)[0]
+    key = f"friction_{word}_slope"
+
+    def apply(x, p):
+        return math.exp(p[key] * (float(x) - reference) / scale)
+
+    return register_probe(Effect(
+        name=f"probe_friction_{column}", kind="progression", role="friction", covariates=(column,),
+        description=(f"Covariate probe, not a physical model: the friction level scaled as "
+                     f"P_f exp(b ({column} - {reference:g}) / {scale:g}) (the table's median and half its range). "
+                     f"diagnose fits it when no built-in effect explains the data: if it explains them better than "
+                     f"every built-in, the missing effect depends on {column}. Off: b = 0."),
+        source="capsule-cli diagnose (covariate probe of a table column); no seed",
+        params=(Param(key, 0.0, (-3.0, 3.0), off=0.0,
+                      description=f"slope b of the log friction level per {scale:g} of {column}"),),
+        apply=apply, origin="probe"))
