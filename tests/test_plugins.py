@@ -133,6 +133,8 @@ def test_an_effect_declares_the_effects_it_contains_and_effects_list_says_so(tmp
     ("from capsule_cli.effects import Param, register_effect\n"
      "register_effect(name='z', kind='friction', nests=(('viscous',),))(lambda y, x, p, c: y)\n",
      "nests must be pairs"),
+    ("from capsule_cli.effects import register_effect\n"  # diagnose's friction probes only
+     "register_effect(name='w', kind='progression', role='friction')(lambda x, p: 1.0)\n", "unknown role"),
 ])
 def test_bad_plugin_exits_2_with_one_line(tmp_path, capsys, clean_registry, src, what):
     plug = tmp_path / "bad.py"

@@ -153,9 +153,9 @@ class Effect:
     #: condition before it is simulated (capsule_cli.dynamics.system); "force" an extra force of state and
     #: time ``apply(t, x_m, v_m, x_c, v_c, p) -> (F_on_magnet_N, F_on_shell_N)`` (SI; p: float64 array of
     #: the parameters in SI in declaration order), compiled with numba and integrated by the engine
-    #: (capsule_cli.dynamics.plugin_force); "friction" (progression) a factor ``apply(x, p) -> float`` of the
-    #: friction level P_f at each condition, x its value of the one covariate (the covariate probes of diagnose);
-    #: "" for the others
+    #: (capsule_cli.dynamics.plugin_force); "friction" (progression; diagnose's covariate probes only, through
+    #: :func:`register_probe`) a factor ``apply(x, p) -> float`` of the friction level P_f at each condition, x its
+    #: value of the probe's one covariate; "" for the others
     role: str = ""
     #: whether a model may hold it more than once (a physical series: a second Maxwell arm); the k-th
     #: instance is the effect ``<name>_<k>`` with parameters ``<param>_<k>`` (see :func:`effect_instance`)
@@ -235,8 +235,8 @@ def register_effect(effect: Effect | None = None, *, name: str | None = None, ki
 
     ``repeatable=True`` lets a model hold the effect more than once (``<name>_2`` with parameters
     ``<param>_2``, see :func:`effect_instance`). ``nests`` names effects this one contains as a special case
-    (``(("viscous", "n = 1"),)``; see :attr:`Effect.nests`). Raises ValueError on a bad registration (unknown kind, a parameter without
-    bounds/off, a name clash with another effect of the kind).
+    (``(("viscous", "n = 1"),)``; see :attr:`Effect.nests`). Raises ValueError on a bad registration (unknown
+    kind, a parameter without bounds/off, a name clash with another effect of the kind).
     """
     if effect is not None:
         _add_effect(effect)
@@ -248,7 +248,8 @@ def register_effect(effect: Effect | None = None, *, name: str | None = None, ki
         eff = Effect(name=name or fn.__name__, kind=kind or "", description=description or (fn.__doc__ or "").strip(),
                      source=source or "user plugin", params=tuple(params), covariates=tuple(covariates),
                      apply=fn, guess=guess, bases=tuple(bases), origin=_CURRENT_ORIGIN[-1], role=role,
-                     repeatable=bool(repeatable), nests=tuple(tuple(x) if isinstance(x, (list, tuple)) else x for x in nests))
+                     repeatable=bool(repeatable),
+                     nests=tuple(tuple(x) if isinstance(x, (list, tuple)) else x for x in nests))
         _add_effect(eff)
         return fn
 
@@ -265,12 +266,10 @@ def _add_effect(eff: Effect) -> None:
     if eff.origin == "built-in" and _CURRENT_ORIGIN[-1] != "built-in":
         eff = Effect(**{**eff.__dict__, "origin": _CURRENT_ORIGIN[-1]})
     _check_params(f"effect '{eff.name}'", eff.params, True)
-    if eff.role not in ("", "drive", "force", "friction"):
+    if eff.role not in ("", "drive", "force"):
+        # ("friction", a friction level set by a covariate, is diagnose's probes' only: register_probe)
         raise ValueError(f"effect '{eff.name}': unknown role '{eff.role}' (\"drive\" for a drive transform, "
-                         "\"force\" for an extra force, \"friction\" for a friction level set by a covariate)")
-    if eff.role == "friction" and (eff.kind != "progression" or len(eff.covariates) != 1):
-        raise ValueError(f"effect '{eff.name}': a friction level set by a covariate is a progression effect of "
-                         "one covariate")
+                         "\"force\" for an extra force)")
     if eff.role and eff.repeatable:
         raise ValueError(f"effect '{eff.name}': a drive transform or force cannot be repeatable")
     if any(not (isinstance(pair, tuple) and len(pair) == 2 and all(isinstance(v, str) for v in pair))
