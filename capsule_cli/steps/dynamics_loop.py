@@ -1936,7 +1936,7 @@ def probe_verdict(base: DynEvaluation, cands: Sequence[dict], probes: Sequence[d
     else:
         form, shown = f"a drive force scaled as s ({cov} / reference)^b", f"s = {got[0]:.3g}, b = {got[1]:.3g}"
     closest = best_b["effect"].name if best_b else None
-    also = [p["effect"].covariates[0] for p in ok if p is not win]
+    also = list(dict.fromkeys(p["effect"].covariates[0] for p in ok if p["effect"].covariates[0] != cov))
     msg = (f"an effect that is not built in depends on {cov}: write a plugin. No built-in effect explains the "
            f"data" + (f" (the closest, {closest}, held-out RMSE {base.cv_rmse:.3g} -> {best_b['ev'].cv_rmse:.3g} "
                       f"{unit})" if best_b else "")
