@@ -586,18 +586,23 @@ def test_a_friction_level_given_per_condition_is_simulated_in_one_batch_as_one_s
         dsys.progression(sysm, f, pd_, protocol=proto, Pf_N=np.r_[pfs[:-1], -1.0])
 
 
+def _diagnose_friction_given(tmp_path, design, replicates, **columns):
+    """Diagnose (base model, P_f free; quick, seed 5) data made with the friction level of the design's Pf_N
+    column, the column dropped (an effect that is not built in) and ``columns`` added."""
+    truth = _model(tmp_path, "truth_pf", params={"Pf_N": 0.02})
+    df = DL.synthesize_progression(truth, design, NOISE, replicates, 5).drop(columns=["Pf_N"]).assign(**columns)
+    path = tmp_path / "pf_synthetic.csv"
+    df.to_csv(path, index=False)
+    base = _model(tmp_path, "base", params={"Pf_N": FREE_PF})
+    return DL.run_diagnose(base, df, str(path), tmp_path / "diag", k_folds=3, seed=5, figures=False, budget=QUICK,
+                           candidates=CANDIDATES)
+
+
 def test_a_friction_level_that_depends_on_the_drive_amplitude_is_named_by_its_covariate(tmp_path):
     """P_f rising as P_d^0.7 (not built in; data made through a Pf_N column, then the column dropped): no built-in
     explains it, nor does the drive probe on P_d (the gap makes the dynamics other than scale-free); the
     friction probe does, and the verdict names Pd_N."""
-    truth = _model(tmp_path, "truth_pfpd", params={"Pf_N": 0.02})
-    design = PD3_DESIGN.assign(Pf_N=0.02 * (PD3_DESIGN["Pd_N"] / 0.1) ** 0.7)
-    df = DL.synthesize_progression(truth, design, NOISE, 2, 5).drop(columns=["Pf_N"])
-    path = tmp_path / "pfpd_synthetic.csv"
-    df.to_csv(path, index=False)
-    base = _model(tmp_path, "base", params={"Pf_N": FREE_PF})
-    r = DL.run_diagnose(base, df, str(path), tmp_path / "diag", k_folds=3, seed=5, figures=False, budget=QUICK,
-                        candidates=CANDIDATES)
+    r = _diagnose_friction_given(tmp_path, PD3_DESIGN.assign(Pf_N=0.02 * (PD3_DESIGN["Pd_N"] / 0.1) ** 0.7), 2)
     v = r["verdict"]
     assert v["outcome"] == "not_built_in" and v["covariate"] == "Pd_N", v["message"]
     assert v["probe"] == "probe_friction_Pd_N" and "friction level scaled" in v["message"]
@@ -616,17 +621,10 @@ def test_a_table_column_beside_the_drive_is_a_covariate_and_gets_its_own_probe(t
                        "temperature_C": [35.0, 36.0, 37.0], "Pf_N": [0.01, 0.02, 0.03], "run": ["a", "b", "c"],
                        "magnet_mm": [0.1, 0.2, 0.3], "mucus_mm": [0.2, 0.2, 0.2]})
     assert DL.dynamics_covariates(rf, "velocity_mm_s") == ["f_Hz", "temperature_C"]
-    truth = _model(tmp_path, "truth_temp", params={"Pf_N": 0.02})
-    rng = np.random.default_rng(5)
     rows = PD3_DESIGN.loc[PD3_DESIGN.index.repeat(2)].reset_index(drop=True)
-    temp = rng.uniform(33.0, 39.0, len(rows)).round(1)
-    df = DL.synthesize_progression(truth, rows.assign(Pf_N=0.02 * np.exp(0.25 * (temp - 36.0) / 3.0)), NOISE, 1,
-                                   5).drop(columns=["Pf_N"]).assign(temperature_C=temp)
-    path = tmp_path / "temp_synthetic.csv"
-    df.to_csv(path, index=False)
-    base = _model(tmp_path, "base", params={"Pf_N": FREE_PF})
-    r = DL.run_diagnose(base, df, str(path), tmp_path / "diag", k_folds=3, seed=5, figures=False, budget=QUICK,
-                        candidates=CANDIDATES)
+    temp = np.random.default_rng(5).uniform(33.0, 39.0, len(rows)).round(1)
+    r = _diagnose_friction_given(tmp_path, rows.assign(Pf_N=0.02 * np.exp(0.25 * (temp - 36.0) / 3.0)), 1,
+                                 temperature_C=temp)
     v = r["verdict"]
     assert v["outcome"] == "not_built_in" and v["covariate"] == "temperature_C", v["message"]
     assert v["probe"] == "probe_friction_temperature_C"
