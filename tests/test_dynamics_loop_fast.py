@@ -403,6 +403,25 @@ def test_residual_figure_draws_a_drift_row_apart_from_the_frames(tmp_path, monke
     assert (tmp_path / "r.png").stat().st_size > 0
 
 
+def test_progression_residual_figure_has_a_panel_per_drive_covariate_and_the_one_named(tmp_path, monkeypatch):
+    """Residuals against f and P_d, and against the covariate a verdict names when it is another column, so
+    that the reader sees the dependence the verdict speaks of."""
+    import matplotlib.pyplot as plt
+
+    figs = []
+    monkeypatch.setattr(plt, "close", lambda fig: figs.append(fig))
+    res = pd.DataFrame({"f_Hz": [30.0, 34.0, 38.0, 30.0], "Pd_N": [0.1, 0.1, 0.2, 0.2],
+                        "temperature_C": [35.0, 36.0, 37.0, 38.0], "residual_velocity_mm_s": [0.1, -2.0, 3.0, 0.4],
+                        "response_class": ["one_impact"] * 4})
+    ev = SimpleNamespace(bound=SimpleNamespace(kind="progression"), sigma=0.5)
+    DL._plot_residuals(res, ev, tmp_path / "r.png", "test", covariate="temperature_C")
+    assert [ax.get_xlabel() for ax in figs[0].axes] == ["f [Hz]", "Pd [N]", "temperature [°C]"]
+    assert all("[mm/s]" in ax.get_ylabel() for ax in figs[0].axes)
+    assert list(figs[0].axes[2].get_lines()[0].get_ydata()) == [0.1, -2.0, 3.0, 0.4]
+    DL._plot_residuals(res, ev, tmp_path / "r2.png", "test", covariate="Pd_N")
+    assert [ax.get_xlabel() for ax in figs[1].axes] == ["f [Hz]", "Pd [N]"]
+
+
 def test_a_continuation_sweep_is_simulated_whole_for_a_subset_of_conditions(tmp_path):
     """Protocol up: each frequency starts from the previous one's end state, so the conditions a fold holds
     out (or trains on) are predicted within the whole sweep. Before, a subset was simulated as a sweep of its

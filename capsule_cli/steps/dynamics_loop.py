@@ -282,12 +282,13 @@ class DynBound(FreeParams):
 
     # -- parameters: names, x0, bounds, values() from effects.model.FreeParams
 
-    def system(self, theta=None, Pf_N: float | None = None) -> dsys.DynSystem:
+    def params_by_name(self, theta=None) -> dict[str, float]:
+        """Return every parameter's value at ``theta`` by its model-file name (unit of its suffix)."""
         vals = self.values(theta)
-        params = {s.param.name: vals[s.key] for s in self.model.specs}
-        if Pf_N is not None:
-            params["Pf_N"] = Pf_N
-        return dsys.build_system(self.model.base.name, params, self.model.effect_names)
+        return {s.param.name: vals[s.key] for s in self.model.specs}
+
+    def system(self, theta=None) -> dsys.DynSystem:
+        return dsys.build_system(self.model.base.name, self.params_by_name(theta), self.model.effect_names)
 
     # -- rows
     def _build_rows(self):
@@ -412,8 +413,7 @@ class DynBound(FreeParams):
         c = self.conditions
         pf = c["Pf_N"].to_numpy(float).copy() if self.column_pf else np.full(len(c), float(sysm.Pf_N))
         if self.friction_mods:
-            vals = self.values(theta)
-            by_name = {s.param.name: vals[s.key] for s in self.model.specs}
+            by_name = self.params_by_name(theta)
             for eff, cov in self.friction_mods:
                 p = {prm.key: float(by_name[prm.name]) for prm in eff.params}
                 pf *= np.array([eff.apply(x, p) for x in c[cov].to_numpy(float)], float)
@@ -1931,7 +1931,8 @@ def probe_verdict(base: DynEvaluation, cands: Sequence[dict], probes: Sequence[d
     vals = win["ev"].bound.values(win["ev"].theta)
     got = [float(vals[prm.name]) for prm in win["effect"].params]
     if getattr(win["effect"], "role", "") == "friction":
-        how = "(" + cov + " / reference)^b" if cov in ("f_Hz", "Pd_N") else "exp(b (" + cov + " - reference) / scale)"
+        from ..effects.dynamics import PROBE_REFERENCE
+        how = f"({cov} / reference)^b" if cov in PROBE_REFERENCE else f"exp(b ({cov} - reference) / scale)"
         form, shown = f"a friction level scaled as {how}", f"b = {got[0]:.3g}"
     else:
         form, shown = f"a drive force scaled as s ({cov} / reference)^b", f"s = {got[0]:.3g}, b = {got[1]:.3g}"
@@ -2115,7 +2116,8 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
     write_table(res, out / "residuals.parquet", residual_schema(res), _prov(model, seed, df, data_path, dh))
     result["figures"] = []
     if figures:
-        _plot_residuals(res, base, out / "residuals.png", f"{model.name}: residuals by condition and class")
+        _plot_residuals(res, base, out / "residuals.png", f"{model.name}: residuals by condition and class",
+                        covariate=verdict.get("covariate"))
         result["figures"].append("residuals.png")
     if write_model is not None:
         named = next((c for c in cands if c["effect"].name == verdict["missing_effect"]), None)
@@ -2192,8 +2194,10 @@ def diagnosis_markdown(r: dict) -> str:
     return "\n".join(lines)
 
 
-def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str) -> None:
-    """Residuals by response class against the drive frequency (progression) or the frame time (trajectory).
+def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str,
+                    covariate: str | None = None) -> None:
+    """Residuals by response class against the drive frequency and amplitude (progression; and against
+    ``covariate``, the one a verdict names, when it is another column) or the frame time (trajectory).
 
     A trajectory run compared by its drift over whole periods (``compared = average_velocity``) has one
     residual that is not a frame's: it is drawn in a panel of its own, per run, so that it is not read as a
@@ -2204,26 +2208,34 @@ def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str
     import matplotlib.pyplot as plt
 
     from ..tables import atomic_path
+    from ..units import split_unit, unit_label
 
     col = [c for c in res.columns if c.startswith("residual_")][0]
-    xcol = "f_Hz" if ev.bound.kind == "progression" else "time_s"
+    xcols = ["f_Hz"] if ev.bound.kind == "progression" else ["time_s"]
+    if ev.bound.kind == "progression":
+        xcols = list(dict.fromkeys(xcols + [c for c in ("Pd_N", covariate) if c and c in res.columns
+                                             and res[c].nunique() >= 2]))
     drift = (res["compared"] == "average_velocity").to_numpy() if "compared" in res.columns \
         else np.zeros(len(res), bool)
-    if drift.any():
-        fig, (ax, axd) = plt.subplots(1, 2, figsize=(7.6, 4.0), gridspec_kw={"width_ratios": [3, 1]})
-    else:
-        fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    ratios = [3] * len(xcols) + ([1] if drift.any() else [])
+    fig, axes = plt.subplots(1, len(ratios), figsize=(6.4 + 3.6 * (len(xcols) - 1) + 1.2 * drift.any(), 4.0),
+                             gridspec_kw={"width_ratios": ratios}, squeeze=False)
+    axes = list(axes[0])
     frames = res[~drift]
-    for i, c in enumerate(RESPONSE_CLASSES + ("failed",)):
-        m = frames["response_class"] == c
-        if m.any():  # one colour per class in every figure, so before/after figures read alike
-            ax.plot(frames.loc[m, xcol], frames.loc[m, col], "o", ms=4, label=c, color=f"C{i}")
-    ax.axhspan(-ev.sigma, ev.sigma, color="0.85", zorder=0, label="±noise SD")
-    ax.set_xlabel(xcol.replace("_Hz", " [Hz]").replace("_s", " [s]"))
     what = "position residual" if ev.bound.kind == "trajectory" else "residual"
-    ax.set_ylabel(f"{what} [{UNIT[ev.bound.kind]}]")
-    ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=7)
+    for j, (ax, xcol) in enumerate(zip(axes, xcols)):
+        for i, c in enumerate(RESPONSE_CLASSES + ("failed",)):
+            m = frames["response_class"] == c
+            if m.any():  # one colour per class in every figure, so before/after figures read alike
+                ax.plot(frames.loc[m, xcol], frames.loc[m, col], "o", ms=4, label=c, color=f"C{i}")
+        ax.axhspan(-ev.sigma, ev.sigma, color="0.85", zorder=0, label="±noise SD")
+        word, unit = split_unit(xcol)
+        ax.set_xlabel(f"{word} [{unit_label(unit)}]" if unit else word)
+        ax.set_ylabel(f"{what} [{UNIT[ev.bound.kind]}]")
+        if j == 0:
+            ax.set_title(title, fontsize=9)
+            ax.legend(fontsize=7)
+    axd = axes[-1] if drift.any() else None
     if drift.any():
         d = res[drift]
         runs = d["run"].astype(str).to_list()
