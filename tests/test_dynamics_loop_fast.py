@@ -653,3 +653,57 @@ def test_a_table_column_beside_the_drive_is_a_covariate_and_gets_its_own_probe(t
     # the median and half-range of this draw make the truth's slope b = 0.25 x (half-range / 3 C), ~0.25
     assert abs(probe[0]["params"]["friction_temperature_slope"]["value"] - 0.25) < 0.05
     assert probe[0]["cv_rmse"] < r["model_as_is"]["cv_rmse"] / 5  # 12.3 -> 0.79 mm/s at this seed
+
+
+def test_a_fit_made_with_the_inflated_noise_bound_is_refined_once_the_noise_is_revised(tmp_path):
+    """Without replicates the fits start from the difference-based noise bound (tens of mm/s where the speed
+    jumps between conditions) and the robust stage's loss is as wide; refit_with_noise refines a fit from its
+    own point with the revised noise's loss, and never keeps a worse one (dynamics_loop.REFIT_NOISE_RATIO)."""
+    from dataclasses import replace
+
+    truth = _model(tmp_path, "truth", params={"Pf_N": 0.02})
+    df, path = _progression_data(tmp_path, truth, TEN_DESIGN, seed=3, replicates=1)
+    model = _model(tmp_path, "m", params={"Pf_N": {**FREE_PF, "value": 0.04}})
+    bound = DL.DynBound(model, df, where=path, rk_rtol=QUICK.rk_rtol)
+    groups, _ = bound.groups()
+    folds = crossval.assign_folds(groups, 3, 0)
+    best = DL.evaluate(bound, NOISE, folds, groups, budget=QUICK)  # the fit made with the noise known
+    # a fit stopped early at the inflated bound: one start, three evaluations, no polish
+    rough = DL.evaluate(bound, 20.0, folds, groups,
+                        budget=replace(QUICK, starts=1, evals_per_param=3, polish_evals_per_param=0))
+    assert rough.rmse > 4 * best.rmse
+    kept = DL.refit_with_noise(rough, 0.6 * 20.0, QUICK, 0)  # not below REFIT_NOISE_RATIO x 20: not refitted
+    assert np.array_equal(kept.theta, rough.theta) and kept.sigma == 12.0
+    fine = DL.refit_with_noise(rough, NOISE, QUICK, 0)
+    assert fine.sigma == NOISE
+    assert fine.rss < rough.with_sigma(NOISE).rss
+    assert fine.rmse == pytest.approx(best.rmse, rel=1e-3)
+    assert fine.theta[0] == pytest.approx(best.theta[0], rel=1e-3) and abs(fine.theta[0] - 0.02) < 5e-4
+    assert fine.seconds > rough.seconds  # the refit's time is added to the first fit's
+    # a fit the refinement cannot better by one noise variance's worth is kept as it is, held-out errors and all
+    again = DL.refit_with_noise(best, 0.2, QUICK, 0)
+    assert np.array_equal(again.theta, best.theta) and again.sigma == 0.2
+    assert np.array_equal(again.cv_pred, best.cv_pred)
+
+
+def test_a_richer_candidate_starts_where_it_reduces_to_the_fitted_effect_it_contains(tmp_path):
+    """The speed law a|V|^n at n = 1 is a viscous drag with c_v = a (Effect.nest_starts): the drag is fitted first
+    and the speed law's calibration starts at its fit, P_f and all, so the richer fit is never worse."""
+    from capsule_cli.steps.diagnose import all_effects
+
+    pool = [e for e in all_effects("progression")]
+    order = [e.name for e in DL.nested_first(pool)]
+    assert order.index("viscous_drag") < order.index("speed_dependent_friction")
+    assert sorted(order) == sorted(e.name for e in pool)
+    law = next(e for e in pool if e.name == "speed_dependent_friction")
+    model = _model(tmp_path, "m", params={"Pf_N": FREE_PF})
+    m2 = model.with_effect(law)
+    drag = SimpleNamespace(theta=np.array([0.0123, 0.047]),
+                           bound=SimpleNamespace(values=lambda th: {"Pf_N": th[0], "drag_Ns_m": th[1]}))
+    free = [s.key for s in m2.specs if s.free]
+    (start,) = DL.nested_starts(m2, law, {"viscous_drag": drag})
+    got = dict(zip(free, start))
+    assert got == {"Pf_N": 0.0123, "a_mN": 0.047, "n": 1.0}
+    assert DL.nested_starts(m2, law, {}) == []  # nothing fitted to start from
+    odd = SimpleNamespace(theta=np.array([0.0123]), bound=SimpleNamespace(values=lambda th: {"Pf_N": th[0]}))
+    assert DL.nested_starts(m2, law, {"viscous_drag": odd}) == []  # the fit lacks the named parameter

@@ -133,6 +133,12 @@ def test_an_effect_declares_the_effects_it_contains_and_effects_list_says_so(tmp
     ("from capsule_cli.effects import Param, register_effect\n"
      "register_effect(name='z', kind='friction', nests=(('viscous',),))(lambda y, x, p, c: y)\n",
      "nests must be pairs"),
+    ("from capsule_cli.effects import Param, register_effect\n"  # a setting of a parameter it does not have
+     "register_effect(name='v', kind='friction', params=(Param('m', 1.0, (0.1, 3.0), 1.0),), nests=(('viscous', "
+     "'m = 1'),), nest_starts={'viscous': {'q': 1.0}})(lambda y, x, p, c: y)\n", "nest_starts must map"),
+    ("from capsule_cli.effects import Param, register_effect\n"  # a start for an effect it does not nest
+     "register_effect(name='u', kind='friction', params=(Param('m', 1.0, (0.1, 3.0), 1.0),), "
+     "nest_starts={'viscous': {'m': 1.0}})(lambda y, x, p, c: y)\n", "nest_starts must map"),
     ("from capsule_cli.effects import register_effect\n"  # diagnose's friction probes only
      "register_effect(name='w', kind='progression', role='friction')(lambda x, p: 1.0)\n", "unknown role"),
 ])

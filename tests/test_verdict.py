@@ -262,3 +262,32 @@ def test_a_noise_taken_from_a_fits_residuals_is_stated_as_a_bound():
     assert "noise at most 1 ± 0.15" in v.message and "residual SD of power" in v.message
     v2 = decide_verdict(y, base, [good], NOISE, {"speed_mm_s": X}, [], GROUPS, 5)
     assert "noise 1 ± 0.15" in v2.message and "at most" not in v2.message
+
+
+def test_a_held_out_excess_over_few_runs_is_weighed_by_run_not_by_row():
+    """Five runs of 150 frames at a 0.2 noise: one run missed as a whole (0.45) is not an excess the five runs can
+    show (clustered by run, t quantile of 4 degrees of freedom), while every run above the noise (0.3) is; with
+    8 runs or more the standard error is the one cv_rmse gives (clustered by run already)."""
+    from capsule_cli.steps import crossval
+    from capsule_cli.steps.verdict import EXCESS_Z, winner_excess
+
+    rng = np.random.default_rng(5)
+    noise = Noise(0.2, 0.2 / np.sqrt(2 * 745), True, "residual SD")
+    groups = np.repeat(np.arange(5), 150)
+
+    def sq(level_per_run):
+        return (np.repeat(level_per_run, 150) * rng.standard_normal(groups.size)) ** 2
+
+    one_missed = sq([0.2, 0.45, 0.2, 0.2, 0.2])
+    rmse = np.sqrt(one_missed.mean())
+    expect, se, z, over = winner_excess(one_missed, groups, noise, groups.size, 3, 5)
+    _, se_rows = crossval.cv_rmse(one_missed, groups)
+    assert rmse > expect + EXCESS_Z * np.hypot(se_rows, 0.2 / np.sqrt(2 * 745))  # by rows: an "excess"
+    assert rmse <= expect + z * se and z > EXCESS_Z and "5 groups" in over  # by run: not shown
+    everywhere = sq([0.3] * 5)
+    expect, se, z, _ = winner_excess(everywhere, groups, noise, groups.size, 3, 5)
+    assert np.sqrt(everywhere.mean()) > expect + z * se  # a real excess still counts
+    many = np.repeat(np.arange(10), 75)
+    expect, se, z, over = winner_excess(one_missed, many, noise, groups.size, 3, 5)
+    assert z == EXCESS_Z and over == ""
+    assert se == pytest.approx(np.hypot(crossval.cv_rmse(one_missed, many)[1], noise.se * expect / noise.sd))

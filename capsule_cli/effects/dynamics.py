@@ -115,7 +115,8 @@ for _kind in KINDS:
         covariates=(), apply=_not_a_transform,
         # at n = 1 the law adds a |V_c| (a in mN per mm/s = N s/m) while the shell slides: viscous_drag with
         # c_v = a, up to the breakaway's a V_min (V_min = 0.2 mm/s: 0.02 mN at a = 0.1 N s/m)
-        nests=(("viscous_drag", "n = 1, c_v = a"),)))
+        nests=(("viscous_drag", "n = 1, c_v = a"),),
+        nest_starts=(("viscous_drag", (("n", 1.0), ("a_mN", "drag_Ns_m"))),)))
 
     register_effect(Effect(
         name="secondary_constraint", kind=_kind,

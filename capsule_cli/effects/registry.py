@@ -65,6 +65,7 @@ from __future__ import annotations
 import difflib
 import hashlib
 import importlib.util
+import math
 import sys
 import traceback
 from dataclasses import dataclass
@@ -165,6 +166,12 @@ class Effect:
     #: verdict compares such a pair by the nested F test, not by Vuong's test of non-nested fits, and names
     #: the simpler one unless the richer fits significantly better (:func:`capsule_cli.steps.verdict.rank_supported`)
     nests: tuple[tuple[str, str], ...] = ()
+    #: where this one reduces to an effect it nests, as values of its own parameters: (effect name, ((own
+    #: parameter name, a number or the nested effect's parameter name whose fitted value it takes), ...)), e.g.
+    #: ``(("viscous_drag", (("n", 1.0), ("a_mN", "drag_Ns_m"))),)``. The dynamics loop fits the nested effect
+    #: first and starts this one's calibration there too, so the richer fit is never worse than the one it
+    #: contains (register_effect takes it as a mapping)
+    nest_starts: tuple = ()
 
     def applicable(self, columns: Iterable[str], base: str | None = None) -> bool:
         """Return True when every covariate the effect needs is in ``columns`` (and the base fits)."""
@@ -223,7 +230,8 @@ def _check_params(owner: str, params: Sequence[Param], is_effect: bool) -> None:
 def register_effect(effect: Effect | None = None, *, name: str | None = None, kind: str | None = None,
                     params: Sequence[Param] = (), covariates: Sequence[str] = (), description: str = "",
                     source: str = "", guess: GuessFn | None = None, bases: Sequence[str] = (), role: str = "",
-                    repeatable: bool = False, nests: Sequence[tuple[str, str]] = ()):
+                    repeatable: bool = False, nests: Sequence[tuple[str, str]] = (),
+                    nest_starts: Mapping[str, Mapping[str, float | str]] | None = None):
     """Register an effect; use as ``register_effect(Effect(...))`` or as a decorator.
 
     As a decorator the function is ``apply(y, x, p, ctx) -> y`` (see the module doc)::
@@ -235,7 +243,9 @@ def register_effect(effect: Effect | None = None, *, name: str | None = None, ki
 
     ``repeatable=True`` lets a model hold the effect more than once (``<name>_2`` with parameters
     ``<param>_2``, see :func:`effect_instance`). ``nests`` names effects this one contains as a special case
-    (``(("viscous", "n = 1"),)``; see :attr:`Effect.nests`). Raises ValueError on a bad registration (unknown
+    (``(("viscous", "n = 1"),)``; see :attr:`Effect.nests`), ``nest_starts`` the same settings as values
+    (``{"viscous": {"n": 1.0, "a_mN": "c_mN_s_mm"}}``: a number, or the nested effect's parameter whose fitted
+    value it takes; see :attr:`Effect.nest_starts`). Raises ValueError on a bad registration (unknown
     kind, a parameter without bounds/off, a name clash with another effect of the kind).
     """
     if effect is not None:
@@ -249,11 +259,36 @@ def register_effect(effect: Effect | None = None, *, name: str | None = None, ki
                      source=source or "user plugin", params=tuple(params), covariates=tuple(covariates),
                      apply=fn, guess=guess, bases=tuple(bases), origin=_CURRENT_ORIGIN[-1], role=role,
                      repeatable=bool(repeatable),
-                     nests=tuple(tuple(x) if isinstance(x, (list, tuple)) else x for x in nests))
+                     nests=tuple(tuple(x) if isinstance(x, (list, tuple)) else x for x in nests),
+                     nest_starts=nest_start_pairs(nest_starts))
         _add_effect(eff)
         return fn
 
     return deco
+
+
+def nest_start_pairs(starts: Mapping[str, Mapping[str, float | str]] | None) -> tuple:
+    """Return :attr:`Effect.nest_starts` from a mapping {nested effect: {own parameter: number or the nested
+    effect's parameter name}} (None: none)."""
+    return tuple((str(name), tuple((str(k), v if isinstance(v, str) else float(v)) for k, v in dict(setting).items()))
+                 for name, setting in dict(starts or {}).items())
+
+
+def _check_nest_starts(eff: Effect) -> None:
+    """Raise ValueError unless every entry of ``eff.nest_starts`` names an effect of ``eff.nests`` and sets
+    ``eff``'s own parameters, each to a finite number or to a parameter name of the nested effect (checked
+    where the start is made, as that effect may be registered later)."""
+    nested = {pair[0] for pair in eff.nests}
+    own = {prm.name for prm in eff.params}
+    for entry in eff.nest_starts:
+        ok = isinstance(entry, tuple) and len(entry) == 2 and entry[0] in nested and isinstance(entry[1], tuple)
+        bad = [] if not ok else [k for k, v in entry[1] if k not in own
+                                 or not (isinstance(v, str) or (isinstance(v, float) and math.isfinite(v)))]
+        if not ok or bad:
+            which = ", ".join(sorted(nested)) or "none"
+            raise ValueError(f"effect '{eff.name}': nest_starts must map an effect it nests ({which}) to its own "
+                             f"parameters ({', '.join(sorted(own))}), each a number or the nested effect's parameter "
+                             "name" + (f"; not {', '.join(map(str, bad))}" if bad else ""))
 
 
 def _add_effect(eff: Effect) -> None:
@@ -276,6 +311,7 @@ def _add_effect(eff: Effect) -> None:
            or pair[0] == eff.name for pair in eff.nests):
         raise ValueError(f"effect '{eff.name}': nests must be pairs (another effect's name, the setting where "
                          "this one reduces to it, in words)")
+    _check_nest_starts(eff)
     if eff.role and eff.kind not in ("progression", "trajectory"):
         raise ValueError(f"effect '{eff.name}': a drive transform or force is a progression or trajectory effect")
     for cov in eff.covariates:
