@@ -244,7 +244,7 @@ def register_effect(effect: Effect | None = None, *, name: str | None = None, ki
     ``repeatable=True`` lets a model hold the effect more than once (``<name>_2`` with parameters
     ``<param>_2``, see :func:`effect_instance`). ``nests`` names effects this one contains as a special case
     (``(("viscous", "n = 1"),)``; see :attr:`Effect.nests`), ``nest_starts`` the same settings as values
-    (``{"viscous": {"n": 1.0, "a_mN": "c_mN_s_mm"}}``: a number, or the nested effect's parameter whose fitted
+    (``{"viscous": {"n": 1.0, "a_mN": "c_Ns_m"}}``: a number, or the nested effect's parameter whose fitted
     value it takes; see :attr:`Effect.nest_starts`). Raises ValueError on a bad registration (unknown
     kind, a parameter without bounds/off, a name clash with another effect of the kind).
     """
