@@ -63,23 +63,25 @@ def cv_rmse_se_few_groups(sq_err: np.ndarray, groups: np.ndarray) -> tuple[float
     With a few trajectory runs a run missed as a whole (its drive on a ridge of the parameters the other runs do
     not pin down) makes its rows' held-out errors move together: a speed law fitted to five 1.5-s runs (noise
     0.2 mm), held out 0.242 mm, has a standard error of 0.0073 mm counted by frame and 0.038 clustered by run.
-    The clustered error has only
-    groups - 1 degrees of freedom (compare with a t quantile: Cameron & Miller 2015, J. Human Resources 50, 317,
-    section VI)."""
+    The clustered error has only groups - 1 degrees of freedom (compare with a t quantile: Cameron & Miller 2015,
+    J. Human Resources 50, 317, section VI)."""
     g = np.asarray(groups)
     G = np.unique(g).size
     if G >= 8 or G < 2 or G == g.size:
         return None
-    mse, se = _mean_se(sq_err, g, always=True)
+    return _rmse_se(sq_err, g, always=True)[1], G - 1
+
+
+def _rmse_se(sq_err: np.ndarray, groups: np.ndarray, always: bool = False) -> tuple[float, float]:
+    """Return (RMSE, its standard error, delta method) from per-point squared errors (:func:`_mean_se`)."""
+    mse, se = _mean_se(sq_err, groups, always)
     rmse = math.sqrt(max(mse, 0.0))
-    return (se / (2 * rmse) if rmse > 0 else float("nan")), G - 1
+    return rmse, (se / (2 * rmse) if rmse > 0 else float("nan"))
 
 
 def cv_rmse(sq_err: np.ndarray, groups: np.ndarray) -> tuple[float, float]:
     """Return (held-out RMSE, its standard error) from per-point held-out squared errors."""
-    mse, se = _mean_se(sq_err, groups)
-    rmse = math.sqrt(max(mse, 0.0))
-    return rmse, (se / (2 * rmse) if rmse > 0 else float("nan"))
+    return _rmse_se(sq_err, groups)
 
 
 def paired_difference(sq_a: np.ndarray, sq_b: np.ndarray, groups: np.ndarray) -> tuple[float, float]:

@@ -1040,14 +1040,12 @@ def evaluate(bound: DynBound, sigma: float, folds, groups, x0=None, budget: Budg
              bootstrap: int = 0, extra_starts: Sequence = (), refit_first: Sequence[int] = (),
              fit: Fit | None = None, sim: dict | None = None) -> DynEvaluation:
     """Return the calibration and grouped cross-validation (standardised errors) of ``bound`` (``fit``, with
-    ``sim`` its simulation with starts, when the calibration is already done)."""
+    ``sim`` its simulation with starts if known, when the calibration is already done)."""
     t0 = time.perf_counter()
     y = bound.observed()
     if fit is None:
         fit = calibrate(bound, y, sigma, None, x0, budget, seed, extra_starts=extra_starts, refit_first=refit_first)
-        sim = None
-    if sim is None:
-        sim = bound.simulate(fit.theta, starts=True)
+    sim = bound.simulate(fit.theta, starts=True) if sim is None else sim
     cv_pred = np.empty_like(y)
     cv_spread = np.zeros_like(y)
     fold_theta = {}
