@@ -1,10 +1,11 @@
 """Benchmark of the dynamics loop (issue 12 item 5 and item 7's false-alarm rate); not a test.
 
 Usage:
-    python benchmarks/bench_dynamics_loop.py time [--replicates 2] [--out FILE.json]
+    python benchmarks/bench_dynamics_loop.py time [--replicates 2] [--truth MODEL.yaml] [--out FILE.json]
         diagnose over the built-in dynamics candidates on the 40-condition progression design
         (configs/designs/progression_grid.csv: 10 frequencies x 4 amplitudes), hidden
-        speed_dependent_friction, default budget; reports wall time, per-candidate time and budget.
+        speed_dependent_friction (configs/models/progression_sdf_truth.yaml; --truth: another true model,
+        e.g. one with a viscous drag), default budget; reports wall time, per-candidate time and budget.
         --replicates 1: one value per condition, so the noise is bounded from differences first and every
         fit is refined once the fits have revised it (dynamics_loop.refit_progression): the slower case.
     python benchmarks/bench_dynamics_loop.py false-alarms --seeds 20 [--conditions 12]
@@ -34,8 +35,8 @@ from capsule_cli.steps.synth import read_design  # noqa: E402
 NOISE = 0.5
 
 
-def bench_time(out: str | None, effort: str = "full", replicates: int = 2) -> dict:
-    truth = build_model(ROOT / "configs/models/progression_sdf_truth.yaml")
+def bench_time(out: str | None, effort: str = "full", replicates: int = 2, truth_path: str | None = None) -> dict:
+    truth = build_model(truth_path or ROOT / "configs/models/progression_sdf_truth.yaml")
     base = build_model(ROOT / "configs/models/progression_base.yaml")
     design = read_design(ROOT / "configs/designs/progression_grid.csv", "progression")
     with tempfile.TemporaryDirectory() as tmp:
@@ -48,7 +49,8 @@ def bench_time(out: str | None, effort: str = "full", replicates: int = 2) -> di
         r = DL.run_diagnose(base, df, str(path), Path(tmp) / "diag", k_folds=5, seed=0, figures=False,
                             budget=DL.EFFORTS[effort], quiet=False)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    rec = {"conditions": int(len(design)), "replicates": replicates, "rows": int(len(df)), "synth_s": t_synth, "diagnose_s": wall,
+    rec = {"truth": str(truth_path or "configs/models/progression_sdf_truth.yaml"),
+           "conditions": int(len(design)), "replicates": replicates, "rows": int(len(df)), "synth_s": t_synth, "diagnose_s": wall,
            "diagnose_cpu_s": cpu, "effort": effort, "budget": r["budget"], "verdict": r["verdict"],
            "candidates": [{k: c[k] for k in ("effect", "cv_rmse", "seconds", "evaluations", "passes")}
                           for c in r["candidates"]],
@@ -96,9 +98,10 @@ def main() -> None:
     ap.add_argument("--conditions", type=int, default=12)
     ap.add_argument("--effort", default="full", choices=sorted(DL.EFFORTS))
     ap.add_argument("--replicates", type=int, default=2)
+    ap.add_argument("--truth", default=None, help="true model file of the timed data (default: hidden speed law)")
     a = ap.parse_args()
     if a.what == "time":
-        bench_time(a.out, a.effort, a.replicates)
+        bench_time(a.out, a.effort, a.replicates, a.truth)
     else:
         bench_false_alarms(a.seeds, a.conditions)
 

@@ -707,3 +707,42 @@ def test_a_richer_candidate_starts_where_it_reduces_to_the_fitted_effect_it_cont
     assert DL.nested_starts(m2, law, {}) == []  # nothing fitted to start from
     odd = SimpleNamespace(theta=np.array([0.0123]), bound=SimpleNamespace(values=lambda th: {"Pf_N": th[0]}))
     assert DL.nested_starts(m2, law, {"viscous_drag": odd}) == []  # the fit lacks the named parameter
+
+
+def test_a_start_two_orders_of_magnitude_behind_stops_and_the_others_end_as_uninterrupted(monkeypatch):
+    """The multi-start race (DL.RACE_FIRST, DL.RACE_DROP): a Nelder-Mead start whose cost, half-way through its
+    evaluations, is above RACE_DROP x the best start's stops there; every other start resumes
+    from its simplex and ends bitwise where one uninterrupted run ends, with the same number of evaluations."""
+    a, b = np.array([0.3, 0.7, 0.5]), np.array([0.8, 0.2, 0.9])
+    M = 90  # evaluations per start: the full effort's 30 per parameter
+
+    def cost(u):  # two basins: the global one at a (cost 1e-4) and a local one at b (cost 0.0501)
+        calls.append(1)
+        return float(min(np.sum((u - a) ** 2), 0.05 + np.sum((u - b) ** 2)) + 1e-4)
+
+    starts = [a + 0.1, b - 0.05, a - 0.12]
+    calls: list = []
+    plain_runs: list = []
+    plain = DL._nelder_mead(cost, starts, M, 0.15, 1e-3, plain_runs)
+    n_plain = len(calls)
+    calls.clear()
+    race_runs: list = []
+    raced = DL._nelder_mead(cost, starts, M, 0.15, 1e-3, race_runs, race=True)
+    n_race = len(calls)
+    assert raced[1] == plain[1] and np.array_equal(raced[0], plain[0])
+    assert race_runs[0][0] == plain_runs[0][0] and race_runs[2][0] == plain_runs[2][0]
+    assert np.array_equal(race_runs[0][1], plain_runs[0][1])
+    # the start in the local basin stopped above 0.05 (> 100 x the lead's ~1e-4) half-way
+    assert 0.05 < race_runs[1][0] < 0.06 and plain_runs[1][0] < race_runs[1][0]
+    calls.clear()
+    DL._nelder_mead(cost, starts[1:2], M, 0.15, 1e-3)
+    alone = len(calls)  # the stopped start's evaluations without the race
+    pause = int(np.ceil(DL.RACE_FIRST * M))
+    assert alone > pause + 4 and pause <= n_race - (n_plain - alone) <= pause + 4  # to the pause (+ one iteration)
+    # no start dropped: every run as without the race, evaluation for evaluation
+    monkeypatch.setattr(DL, "RACE_DROP", np.inf)
+    calls.clear()
+    all_runs: list = []
+    same = DL._nelder_mead(cost, starts, M, 0.15, 1e-3, all_runs, race=True)
+    assert len(calls) == n_plain and same[1] == plain[1]
+    assert [r[0] for r in all_runs] == [r[0] for r in plain_runs]
