@@ -1907,12 +1907,12 @@ def nested_starts(m2: Model, eff: Effect, fitted: Mapping[str, DynEvaluation]) -
     fit's values, ``eff``'s own at the declared setting (a number, or that fit's value of the named parameter).
     A setting naming a parameter the fit does not have is skipped."""
     out = []
+    own = {s.param.name: s.key for s in m2.specs if s.owner == eff.name}
     for name, setting in getattr(eff, "nest_starts", ()):
         ev = fitted.get(name)
         if ev is None:
             continue
         got = ev.bound.values(ev.theta)
-        own = {s.param.name: s.key for s in m2.specs if s.owner == eff.name}
         try:
             vals = {own[k]: float(got[v]) if isinstance(v, str) else float(v) for k, v in setting}
         except KeyError:
