@@ -252,6 +252,36 @@ def test_axis_scan_moves_one_parameter_at_a_time():
         assert u[i // 4] == pytest.approx((i % 4 + 0.5) / 4)
 
 
+def test_box_map_is_logarithmic_above_log_from_and_unchanged_for_the_others():
+    """A parameter with ``log_from`` r: equal steps of the box coordinate multiply theta - lo + r by the same
+    factor (every decade above r alike); the others keep theta = lo + span u^2 (non-negative, a decade or more)
+    or the linear map; to_u inverts to_theta."""
+    par = lambda lf=None: SimpleNamespace(log_from=lf)  # noqa: E731
+    bound = SimpleNamespace(bounds=(np.array([0.0, 0.05, -2.0]), np.array([5000.0, 1.25, 2.0])),
+                            free=[SimpleNamespace(param=par(1.0)), SimpleNamespace(param=par()),
+                                  SimpleNamespace(param=par())])
+    to_theta, to_u = DL.box_map(bound)
+    us = np.linspace(0.0, 1.0, 11)
+    th = np.array([to_theta(np.full(3, u)) for u in us])
+    assert th[0] == pytest.approx([0.0, 0.05, -2.0]) and th[-1] == pytest.approx([5000.0, 1.25, 2.0])
+    ratios = (th[1:, 0] + 1.0) / (th[:-1, 0] + 1.0)
+    assert ratios == pytest.approx(np.full(10, 5001.0 ** 0.1), rel=1e-12)
+    assert th[:, 1] == pytest.approx(0.05 + 1.2 * us ** 2, rel=1e-14)
+    assert th[:, 2] == pytest.approx(-2.0 + 4.0 * us, abs=1e-14)
+    x = np.array([8.778, 0.25, 0.3])
+    assert to_theta(to_u(x)) == pytest.approx(x, rel=1e-12)
+
+
+def test_speed_law_box_holds_the_seeds_laws_and_the_nested_drag_inside():
+    """The speed law's box holds seed 000's Case 1 and Case 4 fits (eqs 17-18: a = 8.778 and 1539 mN, n = 0.25)
+    and the viscous drag it nests at n = 1 strictly inside (an edge would rank the fit as strained), and its
+    rise a is mapped logarithmically (configs/params/friction_laws_dynamics.yaml)."""
+    eff = registry.get_effect("progression", "speed_dependent_friction")
+    a, n = (next(p for p in eff.params if p.name == nm) for nm in ("a_mN", "n"))
+    assert a.bounds[0] == 0.0 and a.bounds[1] >= 1539.0 and a.log_from is not None and 0 < a.log_from < 8.778
+    assert n.bounds[0] < 0.25 < 1.0 < n.bounds[1] <= 1.5
+
+
 # four 1 s runs (the design of configs/designs/trajectory_runs.csv)
 FOUR_RUNS = pd.DataFrame({"run": ["r1", "r2", "r3", "r4"], "f_Hz": [25.0, 30.0, 35.0, 38.0],
                           "Pd_N": [0.15, 0.15, 0.2, 0.2], "duration_s": [1.0] * 4})

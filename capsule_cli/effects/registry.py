@@ -107,6 +107,10 @@ class Param:
         None for base-model parameters
     free : whether the parameter is freed when the effect is added by ``diagnose``
     description : what it is
+    log_from : dynamics calibrations only: the value (unit of the suffix) above the lower bound from which
+        the calibration's box coordinate u in [0, 1] is logarithmic, theta = lo + r ((1 + span / r)^u - 1)
+        with r = log_from, for a parameter whose plausible values sit decades below its upper bound; None:
+        the default map (``capsule_cli.steps.dynamics_loop.calibrate``)
     """
 
     name: str
@@ -115,6 +119,7 @@ class Param:
     off: float | None = None
     free: bool = True
     description: str = ""
+    log_from: float | None = None
 
     @property
     def key(self) -> str:

@@ -726,13 +726,7 @@ def calibrate(bound: DynBound, y: np.ndarray, sigma: float, rows=None, x0=None, 
         # horizon continuation: the first few periods from rest first, then ever longer horizons
         extra_starts = list(extra_starts) + _horizon_starts(bound, y, sigma, rows, start, budget, seed, extra_starts,
                                                             refit_first)
-    lo, hi = bound.bounds
-    span = hi - lo
-    # box coordinates u in [0, 1]: theta = lo + span u^2 for non-negative parameters spanning a decade or more
-    # (resolution near the lower bound, where stiffnesses, gaps and coefficients usually sit), else linear
-    quad = (lo >= 0) & (hi >= 10 * np.maximum(lo, 1e-300))
-    to_theta = lambda u: lo + span * np.where(quad, np.clip(u, 0, 1) ** 2, np.clip(u, 0, 1))  # noqa: E731
-    to_u = lambda th: np.where(quad, np.sqrt(np.clip((th - lo) / span, 0, 1)), np.clip((th - lo) / span, 0, 1))  # noqa: E731
+    to_theta, to_u = box_map(bound)
     nfev = [0]
     idx = np.arange(y.size) if rows is None else np.asarray(rows, int)
     big = math.sqrt(PENALTY) * max(sigma, 1.0)
@@ -836,6 +830,35 @@ def calibrate(bound: DynBound, y: np.ndarray, sigma: float, rows=None, x0=None, 
     if budget.polish_evals_per_param > 0:
         best_u, best_c = _polish(resid, best_u, best_c, budget.polish_evals_per_param * k)
     return Fit(to_theta(best_u), best_c, nfev[0], len(starts), weights)
+
+
+def box_map(bound: "DynBound"):
+    """Return (to_theta, to_u), the calibration's map between box coordinates u in [0, 1] and the free
+    parameters (units of their names' suffixes).
+
+    A parameter that declares ``log_from`` r (:class:`capsule_cli.effects.registry.Param`) is logarithmic
+    above r: theta = lo + r ((1 + span / r)^u - 1), so a scan and a Nelder-Mead simplex see every decade
+    alike (a speed law's rise a: plausible values of a few mN in a box up to 5000 mN); other non-negative
+    parameters spanning a decade or more, theta = lo + span u^2 (resolution near the lower bound, where
+    stiffnesses, gaps and coefficients usually sit); the rest linearly."""
+    lo, hi = (np.asarray(b, float) for b in bound.bounds)
+    span = hi - lo
+    ref = np.array([np.nan if getattr(s.param, "log_from", None) is None else float(s.param.log_from)
+                    for s in bound.free], float)
+    logm = np.isfinite(ref) & (ref > 0) & (lo >= 0)
+    r = np.where(logm, ref, 1.0)
+    g = np.log1p(span / r)
+    quad = ~logm & (lo >= 0) & (hi >= 10 * np.maximum(lo, 1e-300))
+
+    def to_theta(u):
+        u = np.clip(u, 0, 1)
+        return lo + np.where(logm, r * np.expm1(g * u), span * np.where(quad, u ** 2, u))
+
+    def to_u(th):
+        x = np.clip((np.asarray(th, float) - lo) / span, 0, 1)
+        return np.where(logm, np.log1p(x * span / r) / g, np.where(quad, np.sqrt(x), x))
+
+    return to_theta, to_u
 
 
 #: Trajectory horizon continuation (:func:`_horizon_starts`): drive periods from rest of the successive fits.
