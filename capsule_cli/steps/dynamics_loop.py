@@ -955,9 +955,9 @@ def line_refine(u: np.ndarray, i: int, n: int, half: float) -> list[np.ndarray]:
 #: A speed-law candidate on data with a viscous drag hidden (40 conditions, noise 0.5 mm/s): its Sobol-scan
 #: start (a 822 mN, n 1.6) was 1,040x the best start's cost half-way and ended 1,100x above it, after 213 s of
 #: engine time (one thread) in the slow corner of the box (a steep law at n near 2, which the adaptive slips
-#: resolve in tiny steps; the box of n then reached 2, and a's map was the square root's: session 23 narrowed
-#: the one and made the other logarithmic, :mod:`capsule_cli.effects.dynamics`) against 12 s for the start
-#: that won. Measured over the multi-start runs of eight
+#: resolve in tiny steps; a's box coordinate was then the square root's, logarithmic since session 23,
+#: :mod:`capsule_cli.effects.dynamics`) against 12 s for the start that won. Measured over the multi-start
+#: runs of eight
 #: 40-condition diagnoses (nothing, a speed law, a drag, a secondary constraint hidden; rest and continuation;
 #: session 22 closing note): no start that ended within 5 % of the winner's cost was above 37x the best start's
 #: half-way (a third of the way, one was at 586x), no winner would have been stopped, and the starts stopped
