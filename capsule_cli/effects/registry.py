@@ -110,7 +110,7 @@ class Param:
     log_from : dynamics calibrations only: the value (unit of the suffix) above the lower bound from which
         the calibration's box coordinate u in [0, 1] is logarithmic, theta = lo + r ((1 + span / r)^u - 1)
         with r = log_from, for a parameter whose plausible values sit decades below its upper bound; None:
-        the default map (``capsule_cli.steps.dynamics_loop.calibrate``)
+        the default map (``capsule_cli.steps.dynamics_loop.box_map``)
     """
 
     name: str
