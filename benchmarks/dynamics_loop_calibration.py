@@ -23,6 +23,7 @@ the next decides the branch: one, several and irregular responses):
 frames per second, white position noise POS_NOISE), the runs of one design per seed:
     runs3: 24 Hz / 0.15 N, 32 Hz / 0.20 N, 40 Hz / 0.25 N, 0.6 s each
     runs4: 20 Hz / 0.15 N, 28 Hz / 0.15 N, 36 Hz / 0.20 N, 40 Hz / 0.25 N, 0.5 s each
+    long3: 22 Hz / 0.15 N, 30 Hz / 0.20 N, 38 Hz / 0.25 N, 3 s each (``--designs long3``)
 """
 from __future__ import annotations
 
@@ -61,6 +62,9 @@ TRAJECTORY_DESIGNS = {
                            "duration_s": [0.6] * 3}),
     "runs4": pd.DataFrame({"run": ["a", "b", "c", "d"], "f_Hz": [20.0, 28.0, 36.0, 40.0],
                            "Pd_N": [0.15, 0.15, 0.20, 0.25], "duration_s": [0.5] * 4}),
+    # few long runs: each held out is predicted by two others that pin the friction level down less
+    "long3": pd.DataFrame({"run": ["a", "b", "c"], "f_Hz": [22.0, 30.0, 38.0], "Pd_N": [0.15, 0.20, 0.25],
+                           "duration_s": [3.0] * 3}),
 }
 
 
@@ -142,14 +146,14 @@ def main() -> None:
                     help="null progression speeds, or null trajectories (designs runs3,runs4)")
     ap.add_argument("--designs", default=None,
                     help=f"comma-separated, alternating over seeds: {sorted(DESIGNS)} (progression; default six,ten) "
-                         f"or {sorted(TRAJECTORY_DESIGNS)} (trajectory; default both)")
+                         f"or {sorted(TRAJECTORY_DESIGNS)} (trajectory; default runs3,runs4)")
     ap.add_argument("--out", default=None, help="result JSON (default benchmarks/dynamics_loop_calibration_result.json, "
                                                 "_trajectory_result.json for --kind trajectory)")
     a = ap.parse_args()
     cands = [c for c in a.candidates.split(",") if c] or None
     table = TRAJECTORY_DESIGNS if a.kind == "trajectory" else DESIGNS
-    designs = tuple(d for d in (a.designs or ",".join(table if a.kind == "trajectory" else ("six", "ten"))).split(",")
-                    if d)
+    default = ("runs3", "runs4") if a.kind == "trajectory" else ("six", "ten")
+    designs = tuple(d for d in (a.designs or ",".join(default)).split(",") if d)
     if not designs or any(d not in table for d in designs):
         ap.error(f"--designs: choose from {sorted(table)}")
     out = a.out or str(ROOT / "benchmarks" / ("dynamics_loop_calibration_trajectory_result.json"

@@ -1,0 +1,103 @@
+"""Trajectories over a few runs (issue 12 items 3-4): the error model of a run's drift and the held-out error a
+correct model gives on the design (parametric bootstrap), which the "nothing is missing" test compares with."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from capsule_cli.effects.model import build_model
+from capsule_cli.steps import dynamics_loop as DL
+from capsule_cli.steps import verdict as V
+
+pytestmark = pytest.mark.xdist_group("dynamics_loop")
+
+POS_NOISE = 0.1  # [mm]
+
+
+def _model(tmp_path, name, params):
+    doc = {"kind": "trajectory", "base": "one_sided", "effects": [], "params": params}
+    (tmp_path / f"{name}.yaml").write_text(yaml.safe_dump(doc))
+    return build_model(tmp_path / f"{name}.yaml")
+
+
+@pytest.mark.parametrize("f_Hz, t_end_s", [(25.0, 1.0), (30.0, 0.995), (33.0, 0.62), (7.0, 0.1)])
+def test_drift_noise_factor_is_the_norm_of_the_drifts_weights_on_the_frames(f_Hz, t_end_s):
+    # run_drift is linear in the positions: its weight on frame i is its value on the i-th unit vector; with
+    # white noise of SD sigma per frame the drift's SD is sigma times the norm of those weights
+    t = np.arange(0.0, t_end_s + 1e-12, 0.01)
+    weights = [DL.run_drift(t, np.eye(t.size)[i], f_Hz)[1] for i in range(t.size)]
+    assert DL.drift_noise_factor(t, f_Hz) == pytest.approx(math.sqrt(float(np.sum(np.square(weights)))), rel=1e-12)
+
+
+def test_drift_noise_factor_values():
+    t = np.arange(0.0, 0.995, 0.01)  # frames 0 ... 0.99 s
+    assert DL.drift_noise_factor(np.arange(0.0, 1.0 + 1e-12, 0.01), 25.0) == pytest.approx(math.sqrt(2.0), rel=1e-12)
+    lam = (29.0 / 30.0 - 0.96) / 0.01  # T = 29 / 30 s between the frames at 0.96 and 0.97 s
+    assert DL.drift_noise_factor(t, 30.0) == pytest.approx(math.sqrt(1 + (1 - lam) ** 2 + lam ** 2), rel=1e-9)
+
+
+def test_standardised_errors_use_each_rows_noise_factor_and_spread():
+    sim = {"pred": np.zeros(3), "spread": np.array([0.0, 0.0, 0.3]), "noise_factor": np.array([1.0, 2.0, 1.0])}
+    y = np.array([0.2, 0.2, 0.2])
+    sq = DL._std_sq(y, sim, 0.1)
+    # r^2 sigma^2 / (sigma^2 f^2 + s^2)
+    np.testing.assert_allclose(sq, [0.04, 0.04 / 4, 0.04 * 0.01 / (0.01 + 0.09)], rtol=1e-12)
+    # a progression's rows have no factor: as before
+    np.testing.assert_allclose(DL._std_sq(y, {"pred": np.zeros(3), "spread": np.zeros(3)}, 0.1), 0.04, rtol=1e-12)
+
+
+def _evaluate(tmp_path, design, seed):
+    truth = _model(tmp_path, "truth", {"Pf_N": 0.02})
+    base = _model(tmp_path, "base", {"Pf_N": {"value": 0.02, "free": True, "bounds": [0.001, 0.2]}})
+    df = DL.synthesize_trajectory(truth, design, POS_NOISE, 100.0, seed)
+    bound = DL.DynBound(base, df, where="test")
+    groups, _ = bound.groups()
+    folds = groups.copy()  # one run per fold
+    budget = DL.Budget(scan_per_param=4, starts=2, evals_per_param=15, fold_evals_per_param=8, bootstrap=0)
+    return DL.evaluate(bound, POS_NOISE, folds, groups, budget=budget, seed=seed), budget
+
+
+def test_held_out_of_a_correct_model_is_the_noise_where_the_runs_pin_each_other_down(tmp_path):
+    # three runs at one drive: each is predicted by the other two as well as by itself
+    design = pd.DataFrame({"run": ["a", "b", "c"], "f_Hz": 34.0, "Pd_N": 0.15, "duration_s": 0.4})
+    ev, budget = _evaluate(tmp_path, design, 1)
+    mean, sd, draws = DL.held_out_of_truth(ev, budget, 0, draws=8)
+    assert draws == 8 and sd > 0
+    # linear model: sqrt(1 + k / n_train) = 1.012 of the noise; 8 draws of an RMSE over 123 frames
+    assert 0.9 * POS_NOISE < mean < 1.12 * POS_NOISE
+
+
+def test_held_out_of_a_correct_model_exceeds_the_noise_where_a_run_is_not_pinned_down(tmp_path):
+    # one long run and two of four frames: held out, the long run is predicted with a friction level fitted
+    # to eight frames, and its error grows along the run
+    design = pd.DataFrame({"run": ["long", "s1", "s2"], "f_Hz": [30.0, 34.0, 38.0], "Pd_N": [0.2, 0.15, 0.15],
+                           "duration_s": [1.5, 0.03, 0.03]})
+    ev, budget = _evaluate(tmp_path, design, 2)
+    mean, sd, _ = DL.held_out_of_truth(ev, budget, 0, draws=8)
+    linear = POS_NOISE * math.sqrt(V.expected_cv_inflation(ev.y.size, 1, 3))
+    assert mean > 1.5 * linear
+    # the same draws for the same seed (reproducible)
+    assert DL.held_out_of_truth(ev, budget, 0, draws=8)[0] == mean
+
+
+def _summary(name, n_free, cv_rmse, n=300, expected=None):
+    sq = np.full(n, cv_rmse ** 2)
+    return V.FitSummary(name, n_free, float(n * 0.1 ** 2), np.zeros(n), sq, cv_expected=expected)
+
+
+@pytest.mark.parametrize("expected, outcome", [(None, "cannot_tell"), ((0.14, 0.02, 12), "nothing_missing"),
+                                               ((0.11, 0.005, 12), "cannot_tell")])
+def test_nothing_missing_weighs_the_held_out_error_against_the_designs_own(expected, outcome):
+    # the model as is held out at 1.5x the noise: "cannot tell" against the linear model's expectation, "nothing is
+    # missing" when a correct model gives that much on these runs, "cannot tell" again when it gives less
+    y = np.zeros(300)
+    groups = np.repeat([0, 1, 2], 100)
+    base = _summary("", 1, 0.15, expected=expected)
+    v = V.decide_verdict(y, base, [], V.Noise(0.1, 0.004), {}, [], groups, 3, unit="mm")
+    assert v.outcome == outcome
+    if expected is not None and outcome == "nothing_missing":
+        assert "12 draws" in v.message
