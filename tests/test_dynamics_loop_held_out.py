@@ -101,3 +101,21 @@ def test_nothing_missing_weighs_the_held_out_error_against_the_designs_own(expec
     assert v.outcome == outcome
     if expected is not None and outcome == "nothing_missing":
         assert "12 draws" in v.message
+
+
+def test_a_chaotic_runs_drift_spreads_over_starting_states_and_that_enters_its_error(tmp_path):
+    # contract base (P_f 0.0078 N), 22 Hz / 0.15 N for 3 s from rest: an irregular response whose path from rest
+    # parts from the paths 1-10 um off within 0.2 s; its drift over 3 s moves by about a millimetre with the start,
+    # while the steady response's window term is a thousandth of that
+    base = _model(tmp_path, "base", {"Pf_N": {"value": 0.0078, "free": True, "bounds": [0.001, 0.2]}})
+    t = np.arange(0.0, 3.0 + 1e-12, 0.01)
+    df = pd.DataFrame({"run": "r", "f_Hz": 22.0, "Pd_N": 0.15, "time_s": t, "capsule_mm": 0.0, "magnet_mm": 0.0})
+    bound = DL.DynBound(base, df, where="test", modes={"r": "average_velocity"})
+    plain = bound.simulate(np.array([0.0078]))
+    starts = bound.simulate(np.array([0.0078]), starts=True)
+    assert plain["cls"][0] == "irregular" and plain["pred"][0] == starts["pred"][0]
+    assert starts["spread"][0] > 0.3 and starts["spread"][0] > 100 * plain["spread"][0]
+    assert starts["noise_factor"][0] == pytest.approx(math.sqrt(2.0), rel=1e-12)  # frames at 0 and T = 3 s
+    sq = DL._std_sq(np.array([starts["pred"][0] + 1.0]), {k: v[:1] for k, v in starts.items()
+                                                         if k in ("pred", "spread", "noise_factor")}, POS_NOISE)
+    assert sq[0] == pytest.approx(POS_NOISE ** 2 / (2 * POS_NOISE ** 2 + starts["spread"][0] ** 2), rel=1e-9)
