@@ -119,3 +119,38 @@ def test_a_chaotic_runs_drift_spreads_over_starting_states_and_that_enters_its_e
     sq = DL._std_sq(np.array([starts["pred"][0] + 1.0]), {k: v[:1] for k, v in starts.items()
                                                          if k in ("pred", "spread", "noise_factor")}, POS_NOISE)
     assert sq[0] == pytest.approx(POS_NOISE ** 2 / (2 * POS_NOISE ** 2 + starts["spread"][0] ** 2), rel=1e-9)
+
+
+def test_diagnose_says_nothing_is_missing_where_a_correct_model_is_held_out_above_the_noise(tmp_path):
+    # null data (the base model is the truth): one 1.5-s run and two of four frames. Held out, the long run is
+    # missed by several noise SDs (its friction level comes from eight frames): above the linear expectation,
+    # which said "the data cannot tell"; a correct model does that on these runs (held_out_if_true)
+    truth = _model(tmp_path, "truth", {"Pf_N": 0.02})
+    base = _model(tmp_path, "base", {"Pf_N": {"value": 0.03, "free": True, "bounds": [0.001, 0.2]}})
+    design = pd.DataFrame({"run": ["long", "s1", "s2"], "f_Hz": [30.0, 34.0, 38.0], "Pd_N": [0.2, 0.15, 0.15],
+                           "duration_s": [1.5, 0.03, 0.03]})
+    df = DL.synthesize_trajectory(truth, design, POS_NOISE, 100.0, 2)
+    path = tmp_path / "null_synthetic.csv"
+    df.to_csv(path, index=False)
+    r = DL.run_diagnose(base, df, str(path), tmp_path / "d", k_folds=3, seed=0, figures=False,
+                        budget=DL.EFFORTS["quick"], candidates=[])
+    asis = r["model_as_is"]
+    assert asis["cv_rmse"] > 2 * r["noise"]["sd"]
+    rec = asis["held_out_if_true"]
+    assert rec["draws"] == DL.HELD_OUT_DRAWS and rec["mean"] > 2 * r["noise"]["sd"]
+    assert r["verdict"]["outcome"] == "nothing_missing", r["verdict"]["message"]
+
+
+@pytest.mark.parametrize("expected", [None, (0.16, 0.03, 12)])
+def test_a_named_effects_excess_is_weighed_against_what_it_gives_as_the_truth_on_the_runs(expected):
+    n = 300
+    y, groups = np.zeros(n), np.repeat([0, 1, 2], 100)
+    base = V.FitSummary("", 1, float(n * 1.0), np.zeros(n), np.full(n, 1.0))
+    cand = V.FitSummary("tilt_friction", 2, float(n * 0.01), np.zeros(n), np.full(n, 0.15 ** 2),
+                        cv_expected=expected)
+    v = V.decide_verdict(y, base, [cand], V.Noise(0.1, 0.004), {}, [], groups, 3, unit="mm")
+    assert v.outcome == "missing_effect" and v.missing_effect == "tilt_friction"
+    if expected is None:  # 1.5x the noise, by run: an excess
+        assert "still exceeds the 0.1" in v.message
+    else:  # what it gives as the truth on these runs: said so, and no excess
+        assert "still exceeds" not in v.message and "is what tilt_friction gives as the truth" in v.message

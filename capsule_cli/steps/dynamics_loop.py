@@ -70,7 +70,7 @@ from . import crossval
 from .residual_tests import (correct_for_correlation, is_ordered, noise_estimate, numeric_covariates,
                              serial_correlation, structure_tests)
 from .verdict import (ALPHA_EFFECT, EXCESS_Z, RULE_TEXT, FitSummary, Noise, decide_verdict, nested_f_test,
-                      noise_expectation)
+                      noise_expectation, winner_excess)
 
 DYN_KINDS = ("progression", "trajectory")
 #: response classes of dynamics.system.progression (contract section 2, verdict.regime)
@@ -1402,6 +1402,22 @@ def held_out_of_truth(ev: DynEvaluation, budget: Budget, seed: int, draws: int =
     return float(np.mean(out)), float(np.std(out, ddof=1)) if len(out) > 1 else 0.0, len(out)
 
 
+def above_linear_expectation(ev: DynEvaluation, noise: Noise, named: bool) -> bool:
+    """Return whether ``ev``'s held-out RMSE is above what the verdict expects from the noise for a linear model
+    (:func:`.verdict.decide_verdict`: the model as is, ``named`` False, against the per-row standard error; a
+    named effect against :func:`.verdict.winner_excess`): only then can :func:`held_out_of_truth` change the
+    verdict or its message."""
+    if not noise.reliable or not np.isfinite(noise.sd):
+        return False
+    n, folds = ev.y.size, int(np.unique(ev.folds).size)
+    if named:
+        expect, se, z, _ = winner_excess(ev.cv_sq, ev.groups, noise, n, ev.k, folds)
+    else:
+        expect, se = noise_expectation(noise.sd, noise.se, crossval.cv_rmse(ev.cv_sq, ev.groups)[1], n, ev.k, folds)
+        z = EXCESS_Z
+    return bool(ev.cv_rmse > expect + z * se)
+
+
 def held_out_record(ev: DynEvaluation) -> dict | None:
     """Return diagnosis.json's record of :func:`held_out_of_truth` (None when it was not run)."""
     if ev.cv_expected is None:
@@ -2338,13 +2354,15 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
                 c["ev"] = c["ev"].with_sigma(float(noise["sd"]))
     sig_v = float(noise["sd"]) if reliable else sigma
     few_runs = bound.kind == "trajectory" and crossval.cv_rmse_se_few_groups(base.cv_sq, base.groups) is not None
-    if few_runs:
+    nz = Noise(sig_v, float(noise.get("se") or 0.0), reliable)
+    if few_runs and above_linear_expectation(base, nz, named=False):
         # over a few runs the held-out error of a correct model is what its parameters' error makes it on these
-        # runs: measured, not taken from the linear model (held_out_of_truth)
+        # runs: measured, not taken from the linear model (held_out_of_truth); only where it can change the
+        # verdict (the design's expectation only ever relaxes the linear one)
         base = replace(base, cv_expected=held_out_of_truth(base, budget, seed))
     verdict = dynamics_verdict(base, cands, noise, sig_v, struct, covs, rf)
     named = next((c for c in cands if c["effect"].name == verdict["missing_effect"]), None)
-    if few_runs and named is not None:
+    if few_runs and named is not None and above_linear_expectation(named["ev"], nz, named=True):
         named["ev"] = replace(named["ev"], cv_expected=held_out_of_truth(named["ev"], budget, seed))
         verdict = dynamics_verdict(base, cands, noise, sig_v, struct, covs, rf)
     verdict = probe_verdict(base, cands, probes, verdict, UNIT[model.kind], noise=noise | {"reliable": reliable})

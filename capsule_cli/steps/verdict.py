@@ -422,8 +422,8 @@ def design_excess(cv_expected: tuple[float, float, int], expect_linear: float, n
     expect = max(float(mean), float(expect_linear)) if np.isfinite(expect_linear) else float(mean)
     rel = (noise.se or 0.0) / noise.sd if noise.sd and np.isfinite(noise.sd) and noise.sd > 0 else 0.0
     return (expect, math.hypot(float(sd), rel * expect), EXCESS_Z,
-            f"; the held-out RMSE of this model as the truth on these runs, {draws} draws with the noise: "
-            f"{_g(mean)} ± {_g(sd)}")
+            f"parametric bootstrap, {draws} draws: {_g(mean)} ± {_g(sd)}; held out, a run is predicted with "
+            "parameters the other runs pin down less")
 
 
 def measurements_needed(f_stat: float, dk: int, n: int, k1: int, alpha: float,
@@ -751,8 +751,10 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
             if win.cv_expected is not None:
                 exp_w, se_w, z_w, over = design_excess(win.cv_expected, exp_w, noise)
             if win.cv_rmse > exp_w + z_w * se_w:
+                src, over = ((f"it gives as the truth on these runs ({over})", "") if win.cv_expected is not None
+                             else ("expected from the noise", over))
                 msg += (f". With it the held-out RMSE ({_g(win.cv_rmse)} {unit}) still exceeds the {_g(exp_w)} {unit} "
-                        f"expected from the noise by more than {_g(z_w)} standard errors ({_g(se_w)}{over}): its "
+                        f"{src} by more than {_g(z_w)} standard errors ({_g(se_w)}{over}): its "
                         "form may not match the data, or a second effect is missing; after adding it, run diagnose "
                         "again")
             elif win.cv_expected is not None and win.cv_expected[0] > DESIGN_NOTE_RATIO * noise.sd:
@@ -796,8 +798,10 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
         return Verdict("cannot_tell", None, None, None, msg, tests=tests, structure_used=serial)
     # nothing passes: "nothing is missing" only if the numbers agree
     if noise.reliable and not excess:
+        src = (f"a correct model gives on these runs ({over_ex}); {noise_txt}" if base.cv_expected is not None
+               else f"expected from the {noise_txt}")
         msg = (f"nothing is missing: held-out RMSE {_g(cv_base)} {unit} is within {_g(z_ex)} standard errors "
-               f"({_g(comb_se)}{over_ex}) of the {_g(expect)} {unit} expected from the {noise_txt}{corr_txt}")
+               f"({_g(comb_se)}) of the {_g(expect)} {unit} {src}{corr_txt}")
         return Verdict("nothing_missing", None, None, None, msg, tests=tests)
     closest, more, where = None, None, None
     if tests:
@@ -807,8 +811,10 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
         dk = max(cc.n_free - base.n_free, 1)
         more = measurements_needed(ct.f_stat, dk, n, cc.n_free, alpha_effect / m)
         where = where_to_measure(cc.pred - base.pred, covariates, list(cc.covariates) or list(covariates))
-    why = (f"held-out RMSE {_g(cv_base)} {unit} exceeds the {_g(expect)} {unit} expected from the noise by more "
-           f"than {_g(z_ex)} standard errors ({_g(comb_se)}{over_ex})" if noise.reliable else
+    src = (f"a correct model gives on these runs ({over_ex})" if base.cv_expected is not None
+           else "expected from the noise")
+    why = (f"held-out RMSE {_g(cv_base)} {unit} exceeds the {_g(expect)} {unit} {src} by more "
+           f"than {_g(z_ex)} standard errors ({_g(comb_se)})" if noise.reliable else
            f"with {n} points and no replicates {noise_txt}")
     msg = f"the data cannot tell: {why}, but no candidate passes the rule"
     if closest:
