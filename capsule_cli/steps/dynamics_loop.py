@@ -2482,7 +2482,9 @@ def diagnosis_markdown(r: dict) -> str:
              f"- Protocol: {r['protocol']}.",
              f"- Noise: {r['noise']['sd']:.3g} {u} ({r['noise']['method']}).",
              f"- Model as is: held-out {r['model_as_is']['cv_rmse']:.3g} ± {r['model_as_is']['cv_rmse_se']:.2g} {u} "
-             f"(standardised by the error model), {r['cv']['folds']} folds {r['cv']['groups']}.", "",
+             f"(standardised by the error model), {r['cv']['folds']} folds {r['cv']['groups']}"
+             + (lambda h: f"; as the truth on these runs it is held out at {h['mean']:.3g} ± {h['sd']:.2g} {u} "
+                f"({h['draws']} draws, {h['method']})." if h else ".")(r["model_as_is"].get("held_out_if_true")), "",
              "## By response class (model as is)", "", f"| class | n | held-out RMSE [{u}] | mean residual [{u}] |",
              "| --- | --- | --- | --- |"]
     for c in r["model_as_is"]["by_response_class"]:
