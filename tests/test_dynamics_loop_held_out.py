@@ -154,3 +154,18 @@ def test_a_named_effects_excess_is_weighed_against_what_it_gives_as_the_truth_on
         assert "still exceeds the 0.1" in v.message
     else:  # what it gives as the truth on these runs: said so, and no excess
         assert "still exceeds" not in v.message and "is what tilt_friction gives as the truth" in v.message
+
+
+def test_compare_reports_the_held_out_error_a_correct_model_gives_on_few_runs(tmp_path):
+    truth = _model(tmp_path, "truth", {"Pf_N": 0.02})
+    base = _model(tmp_path, "base", {"Pf_N": {"value": 0.03, "free": True, "bounds": [0.001, 0.2]}})
+    design = pd.DataFrame({"run": ["long", "s1", "s2"], "f_Hz": [30.0, 34.0, 38.0], "Pd_N": [0.2, 0.15, 0.15],
+                           "duration_s": [1.5, 0.03, 0.03]})
+    df = DL.synthesize_trajectory(truth, design, POS_NOISE, 100.0, 3)
+    path = tmp_path / "null_synthetic.csv"
+    df.to_csv(path, index=False)
+    met = DL.run_compare(base, df, str(path), tmp_path / "c", None, k_folds=3, seed=0, figures=False,
+                         budget=DL.EFFORTS["quick"])
+    rec = met["held_out_if_true"]
+    assert met["cv_rmse"] > 2 * met["noise_sd"] and rec["mean"] > 2 * met["noise_sd"]
+    assert abs(met["cv_rmse"] - rec["mean"]) < 2 * rec["sd"]

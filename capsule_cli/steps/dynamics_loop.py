@@ -2017,10 +2017,17 @@ def run_compare(model: Model, df: pd.DataFrame, data_path: str, out_dir, ledger=
         noise = trajectory_noise(noise, [ev])
         if noise.get("reliable", True) and 0 < float(noise["sd"]) < sigma:
             ev = ev.with_sigma(float(noise["sd"]))
+        nz = Noise(ev.sigma, float(noise.get("se") or 0.0), bool(noise.get("reliable", True)))
+        if (crossval.cv_rmse_se_few_groups(ev.cv_sq, ev.groups) is not None
+                and above_linear_expectation(ev, nz, named=True)):
+            # held out above the noise over a few runs: is that what the model gives as the truth on them?
+            ev = replace(ev, cv_expected=held_out_of_truth(ev, budget, seed))
     if budget.bootstrap and bound.free:
         ev.intervals = bootstrap_intervals(ev, budget.bootstrap, budget, seed)
     dh = data_hash(data_path)
     met = _metrics(ev, noise, data_path, dh, k_folds, how, budget)
+    if ev.cv_expected is not None:
+        met["held_out_if_true"] = held_out_record(ev)
     met["where_it_fails"] = plain_summary(ev, sigma)
     res = residual_frame(ev)
     out.mkdir(parents=True, exist_ok=True)
