@@ -82,7 +82,7 @@ def _models(tmp: Path, start: str = "rest", kind: str = "progression"):
 
 def run(seeds: int, effort: str, candidates: list[str] | None, out: str | None, first_seed: int = 0,
         replicates: int = 2, start: str = "rest", designs: tuple[str, ...] = ("six", "ten"),
-        kind: str = "progression") -> dict:
+        kind: str = "progression", position_noise_mm: float = POS_NOISE) -> dict:
     budget = DL.EFFORTS[effort]
     rows, t0 = [], time.perf_counter()
     rec: dict = {}
@@ -93,7 +93,7 @@ def run(seeds: int, effort: str, candidates: list[str] | None, out: str | None, 
         for s in range(first_seed, first_seed + seeds):
             dname = designs[s % len(designs)]
             if traj:
-                df = DL.synthesize_trajectory(truth, TRAJECTORY_DESIGNS[dname], POS_NOISE, 100.0, 10_000 + s)
+                df = DL.synthesize_trajectory(truth, TRAJECTORY_DESIGNS[dname], position_noise_mm, 100.0, 10_000 + s)
             else:
                 df = DL.synthesize_progression(truth, DESIGNS[dname], NOISE, replicates, 10_000 + s)
             path = tmp / f"null_{s}_synthetic.csv"
@@ -117,7 +117,7 @@ def run(seeds: int, effort: str, candidates: list[str] | None, out: str | None, 
                     "budget_rule": ALPHA_EFFECT + ALPHA_STRUCTURE, "effort": effort,
                     "candidates": candidates or "all applicable"}
             if traj:
-                what |= {"position_noise_sd_mm": POS_NOISE, "frame_rate_Hz": 100.0,
+                what |= {"position_noise_sd_mm": position_noise_mm, "frame_rate_Hz": 100.0,
                          "designs": {k: TRAJECTORY_DESIGNS[k].to_dict(orient="list") for k in designs}}
             else:
                 what |= {"noise_sd_mm_s": NOISE, "replicates": replicates, "protocol": PROTO | {"start": start},
@@ -147,6 +147,8 @@ def main() -> None:
     ap.add_argument("--designs", default=None,
                     help=f"comma-separated, alternating over seeds: {sorted(DESIGNS)} (progression; default six,ten) "
                          f"or {sorted(TRAJECTORY_DESIGNS)} (trajectory; default runs3,runs4)")
+    ap.add_argument("--position-noise-mm", type=float, default=POS_NOISE,
+                    help=f"trajectories: generating position noise SD [mm] (default {POS_NOISE:g})")
     ap.add_argument("--out", default=None, help="result JSON (default benchmarks/dynamics_loop_calibration_result.json, "
                                                 "_trajectory_result.json for --kind trajectory)")
     a = ap.parse_args()
@@ -158,7 +160,7 @@ def main() -> None:
         ap.error(f"--designs: choose from {sorted(table)}")
     out = a.out or str(ROOT / "benchmarks" / ("dynamics_loop_calibration_trajectory_result.json"
                                               if a.kind == "trajectory" else "dynamics_loop_calibration_result.json"))
-    run(a.seeds, a.effort, cands, out, a.first_seed, a.replicates, a.protocol, designs, a.kind)
+    run(a.seeds, a.effort, cands, out, a.first_seed, a.replicates, a.protocol, designs, a.kind, a.position_noise_mm)
 
 
 if __name__ == "__main__":
