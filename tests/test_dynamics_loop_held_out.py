@@ -121,17 +121,23 @@ def test_a_chaotic_runs_drift_spreads_over_starting_states_and_that_enters_its_e
     assert sq[0] == pytest.approx(POS_NOISE ** 2 / (2 * POS_NOISE ** 2 + starts["spread"][0] ** 2), rel=1e-9)
 
 
-def test_diagnose_says_nothing_is_missing_where_a_correct_model_is_held_out_above_the_noise(tmp_path):
-    # null data (the base model is the truth): one 1.5-s run and two of four frames. Held out, the long run is
-    # missed by several noise SDs (its friction level comes from eight frames): above the linear expectation,
-    # which said "the data cannot tell"; a correct model does that on these runs (held_out_if_true)
+def _one_long_run_and_two_short(tmp_path, seed):
+    """Return (base model, null data, their CSV path): one 1.5-s run and two of four frames, P_f 0.02 N."""
     truth = _model(tmp_path, "truth", {"Pf_N": 0.02})
     base = _model(tmp_path, "base", {"Pf_N": {"value": 0.03, "free": True, "bounds": [0.001, 0.2]}})
     design = pd.DataFrame({"run": ["long", "s1", "s2"], "f_Hz": [30.0, 34.0, 38.0], "Pd_N": [0.2, 0.15, 0.15],
                            "duration_s": [1.5, 0.03, 0.03]})
-    df = DL.synthesize_trajectory(truth, design, POS_NOISE, 100.0, 2)
+    df = DL.synthesize_trajectory(truth, design, POS_NOISE, 100.0, seed)
     path = tmp_path / "null_synthetic.csv"
     df.to_csv(path, index=False)
+    return base, df, path
+
+
+def test_diagnose_says_nothing_is_missing_where_a_correct_model_is_held_out_above_the_noise(tmp_path):
+    # null data (the base model is the truth): one 1.5-s run and two of four frames. Held out, the long run is
+    # missed by several noise SDs (its friction level comes from eight frames): above the linear expectation,
+    # which said "the data cannot tell"; a correct model does that on these runs (held_out_if_true)
+    base, df, path = _one_long_run_and_two_short(tmp_path, 2)
     r = DL.run_diagnose(base, df, str(path), tmp_path / "d", k_folds=3, seed=0, figures=False,
                         budget=DL.EFFORTS["quick"], candidates=[])
     asis = r["model_as_is"]
@@ -157,13 +163,7 @@ def test_a_named_effects_excess_is_weighed_against_what_it_gives_as_the_truth_on
 
 
 def test_compare_reports_the_held_out_error_a_correct_model_gives_on_few_runs(tmp_path):
-    truth = _model(tmp_path, "truth", {"Pf_N": 0.02})
-    base = _model(tmp_path, "base", {"Pf_N": {"value": 0.03, "free": True, "bounds": [0.001, 0.2]}})
-    design = pd.DataFrame({"run": ["long", "s1", "s2"], "f_Hz": [30.0, 34.0, 38.0], "Pd_N": [0.2, 0.15, 0.15],
-                           "duration_s": [1.5, 0.03, 0.03]})
-    df = DL.synthesize_trajectory(truth, design, POS_NOISE, 100.0, 3)
-    path = tmp_path / "null_synthetic.csv"
-    df.to_csv(path, index=False)
+    base, df, path = _one_long_run_and_two_short(tmp_path, 3)
     met = DL.run_compare(base, df, str(path), tmp_path / "c", None, k_folds=3, seed=0, figures=False,
                          budget=DL.EFFORTS["quick"])
     rec = met["held_out_if_true"]
