@@ -2571,7 +2571,13 @@ def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str
     if drift.any():
         d = res[drift]
         runs = d["run"].astype(str).to_list()
-        axd.plot(range(len(runs)), d[col].to_numpy(float), "D", ms=5, mfc="none", color="C3")
+        # each drift's own SD (row_variance: two frames' noise, the spread over windows and starting states)
+        sim = getattr(ev, "sim", None)
+        sd = (np.sqrt(row_variance(ev.sigma, sim) * np.ones(len(res))) if sim is not None
+              else np.full(len(res), float(ev.sigma)))[drift]
+        axd.errorbar(range(len(runs)), d[col].to_numpy(float), yerr=sd, fmt="D", ms=5, mfc="none", color="C3",
+                     capsize=3, label="±SD of the drift")
+        axd.legend(fontsize=7)
         axd.axhline(0.0, color="0.6", lw=0.8)
         axd.set_xticks(range(len(runs)), runs, fontsize=7)
         axd.set_xlim(-0.6, len(runs) - 0.4)
