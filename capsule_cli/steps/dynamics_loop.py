@@ -1419,6 +1419,17 @@ def above_linear_expectation(ev: DynEvaluation, noise: Noise, named: bool) -> bo
     return bool(ev.cv_rmse > expect + z * se)
 
 
+def with_design_expectation(ev: DynEvaluation, noise: Noise, named: bool, budget: Budget, seed: int
+                            ) -> DynEvaluation:
+    """Return ``ev`` with ``cv_expected`` measured (:func:`held_out_of_truth`) when it is a trajectory over fewer
+    than 8 runs held out above the linear expectation (:func:`above_linear_expectation`), else ``ev`` itself:
+    only there can the design's expectation, which only ever relaxes the linear one, change what is said."""
+    if (ev.bound.kind != "trajectory" or crossval.cv_rmse_se_few_groups(ev.cv_sq, ev.groups) is None
+            or not above_linear_expectation(ev, noise, named)):
+        return ev
+    return replace(ev, cv_expected=held_out_of_truth(ev, budget, seed))
+
+
 def held_out_record(ev: DynEvaluation) -> dict | None:
     """Return diagnosis.json's record of :func:`held_out_of_truth` (None when it was not run)."""
     if ev.cv_expected is None:
@@ -2017,11 +2028,9 @@ def run_compare(model: Model, df: pd.DataFrame, data_path: str, out_dir, ledger=
         noise = trajectory_noise(noise, [ev])
         if noise.get("reliable", True) and 0 < float(noise["sd"]) < sigma:
             ev = ev.with_sigma(float(noise["sd"]))
-        nz = Noise(ev.sigma, float(noise.get("se") or 0.0), bool(noise.get("reliable", True)))
-        if (crossval.cv_rmse_se_few_groups(ev.cv_sq, ev.groups) is not None
-                and above_linear_expectation(ev, nz, named=True)):
-            # held out above the noise over a few runs: is that what the model gives as the truth on them?
-            ev = replace(ev, cv_expected=held_out_of_truth(ev, budget, seed))
+        # held out above the noise over a few runs: is that what the model gives as the truth on them?
+        ev = with_design_expectation(ev, Noise(ev.sigma, float(noise.get("se") or 0.0),
+                                               bool(noise.get("reliable", True))), True, budget, seed)
     if budget.bootstrap and bound.free:
         ev.intervals = bootstrap_intervals(ev, budget.bootstrap, budget, seed)
     dh = data_hash(data_path)
@@ -2361,18 +2370,17 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
             for c in cands:
                 c["ev"] = c["ev"].with_sigma(float(noise["sd"]))
     sig_v = float(noise["sd"]) if reliable else sigma
-    few_runs = bound.kind == "trajectory" and crossval.cv_rmse_se_few_groups(base.cv_sq, base.groups) is not None
+    # over a few runs the held-out error of a correct model is what its parameters' error makes it on these runs:
+    # measured, not taken from the linear model, for the model as is and then for the effect named
     nz = Noise(sig_v, float(noise.get("se") or 0.0), reliable)
-    if few_runs and above_linear_expectation(base, nz, named=False):
-        # over a few runs the held-out error of a correct model is what its parameters' error makes it on these
-        # runs: measured, not taken from the linear model (held_out_of_truth); only where it can change the
-        # verdict (the design's expectation only ever relaxes the linear one)
-        base = replace(base, cv_expected=held_out_of_truth(base, budget, seed))
+    base = with_design_expectation(base, nz, False, budget, seed)
     verdict = dynamics_verdict(base, cands, noise, sig_v, struct, covs, rf)
     named = next((c for c in cands if c["effect"].name == verdict["missing_effect"]), None)
-    if few_runs and named is not None and above_linear_expectation(named["ev"], nz, named=True):
-        named["ev"] = replace(named["ev"], cv_expected=held_out_of_truth(named["ev"], budget, seed))
-        verdict = dynamics_verdict(base, cands, noise, sig_v, struct, covs, rf)
+    if named is not None:
+        ev_named = with_design_expectation(named["ev"], nz, True, budget, seed)
+        if ev_named is not named["ev"]:
+            named["ev"] = ev_named
+            verdict = dynamics_verdict(base, cands, noise, sig_v, struct, covs, rf)
     verdict = probe_verdict(base, cands, probes, verdict, UNIT[model.kind], noise=noise | {"reliable": reliable})
     verdict = blocked_caveat(verdict, rf)
     cands.sort(key=lambda c: c["ev"].cv_rmse)
