@@ -684,7 +684,10 @@ def test_a_table_column_beside_the_drive_is_a_covariate_and_gets_its_own_probe(t
     assert len(probe) == 1  # one probe per column, also when an earlier table left one in the registry
     # the median and half-range of this draw make the truth's slope b = 0.25 x (half-range / 3 C), ~0.25
     assert abs(probe[0]["params"]["friction_temperature_slope"]["value"] - 0.25) < 0.05
-    assert probe[0]["cv_rmse"] < r["model_as_is"]["cv_rmse"] / 5  # 12.3 -> 0.79 mm/s at this seed
+    # held out 0.71 mm/s at this seed, the model as is 2.65 and the other probes 2.4-3.0 (the model as is was 12.3
+    # while a condition irregular at its fit, 38 Hz / 0.12 N, was held out as certain where a fold's starts agreed)
+    others = [p["cv_rmse"] for p in r["covariate_probes"] if p["probe"] != "probe_friction_temperature_C"]
+    assert probe[0]["cv_rmse"] < min([r["model_as_is"]["cv_rmse"]] + others) / 3
 
 
 def test_a_fit_made_with_the_inflated_noise_bound_is_refined_once_the_noise_is_revised(tmp_path):
@@ -779,3 +782,39 @@ def test_a_start_two_orders_of_magnitude_behind_stops_and_the_others_end_as_unin
     same = DL._nelder_mead(cost, starts, M, 0.15, 1e-3, all_runs, race=True)
     assert len(calls) == n_plain and same[1] == plain[1]
     assert [r[0] for r in all_runs] == [r[0] for r in plain_runs]
+
+
+def test_a_response_multistable_at_the_fit_keeps_its_spread_held_out(monkeypatch):
+    """A condition whose starts reach two attractors at the fit (-0.5 and 112 mm/s: mean 56, spread 56) may be
+    predicted by a fold refit whose starts all reach one of them (112, spread 0): held out it is standardised by
+    the fit's spread, not as a certain prediction. Measured (40 conditions, a hidden secondary constraint, data
+    from 1 nm off rest): that one condition held the whole held-out error, 17.9 mm/s against 0.60 without it."""
+    n, sigma = 10, 0.5
+    rng = np.random.default_rng(0)
+    y = rng.normal(0.0, sigma, n)
+    y[7] = -0.25  # the data took the -0.5 mm/s attractor
+
+    def simulate(theta, rows=None, starts=False, classify=True):
+        pred, spread = np.zeros(n), np.zeros(n)
+        pred[7], spread[7] = (56.0, 56.0) if theta[0] == 1.0 else (112.0, 0.0)  # the fit; a fold's refit
+        return {"pred": pred, "spread": spread, "cls": np.array(["one_impact"] * n)}
+
+    bound = SimpleNamespace(kind="progression", free=[SimpleNamespace(key="p")], bounds=([0.0], [2.0]),
+                            observed=lambda: y, simulate=simulate)
+    monkeypatch.setattr(DL, "calibrate", lambda *a, **k: DL.Fit(np.array([1.0 + 1e-3]), 0.0, 1, 1))
+    fit = DL.Fit(np.array([1.0]), 0.0, 1, 1)
+    groups = np.arange(n)
+    folds = groups % 5
+    ev = DL.evaluate(bound, sigma, folds, groups, fit=fit)
+    assert ev.cv_pred[7] == 112.0
+    assert ev.cv_spread[7] == 56.0
+    # (112 + 0.25)^2 sigma^2 / (sigma^2 + 56^2) = 1.0 sigma^2 at that row, not 50,000 sigma^2
+    assert ev.cv_sq[7] == pytest.approx(112.25 ** 2 * sigma ** 2 / (sigma ** 2 + 56.0 ** 2))
+    assert ev.cv_rmse < 2 * sigma
+    # were it still to hold the held-out error, the verdict would say the model is multistable there
+    sq = np.ones(n)
+    sq[7] = 400.0
+    dom = DL.dominant_group(SimpleNamespace(cv_sq=sq, groups=groups, sim=ev.sim,
+                                            bound=SimpleNamespace(kind="progression", df=pd.DataFrame(
+                                                {"f_Hz": np.arange(n) + 20.0, "Pd_N": 0.2}))))
+    assert dom["group"] == "f_Hz = 27, Pd_N = 0.2" and dom["model_spread"] == 56.0
