@@ -808,7 +808,8 @@ def test_a_response_multistable_at_the_fit_keeps_its_spread_held_out(monkeypatch
     ev = DL.evaluate(bound, sigma, folds, groups, fit=fit)
     assert ev.cv_pred[7] == 112.0
     assert ev.cv_spread[7] == 56.0
-    # (112 + 0.25)^2 sigma^2 / (sigma^2 + 56^2) = 1.0 sigma^2 at that row, not 50,000 sigma^2
+    # (112 + 0.25)^2 sigma^2 / (sigma^2 + 56^2) = 1.0 (mm/s)^2 at that row (a 2-SD error), not 12,600 (mm/s)^2
+    # (a 225-SD error)
     assert ev.cv_sq[7] == pytest.approx(112.25 ** 2 * sigma ** 2 / (sigma ** 2 + 56.0 ** 2))
     assert ev.cv_rmse < 2 * sigma
     # were it still to hold the held-out error, the verdict would say the model is multistable there
