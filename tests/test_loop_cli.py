@@ -53,3 +53,28 @@ def test_bad_model_files_exit_2_with_one_line(tmp_path, capsys, text, what):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "bad_model.yaml" in err and what in err, err
     assert not (tmp_path / "o").exists()
+
+
+def test_the_ledger_axis_is_logarithmic_when_the_errors_span_decades(tmp_path, monkeypatch):
+    """A model held out at 37.7 mm/s beside its revision at 0.59 and a noise of 0.45 (the study's dynamics demo):
+    on a linear axis the revision cannot be told from the noise band, so the axis is logarithmic there; a friction
+    ledger (3.43 -> 1.47 mN, noise 1.4) stays linear from zero."""
+    import matplotlib.axes
+    import pandas as pd
+
+    from capsule_cli.plots.loop import ledger_log_scale, plot_ledger
+
+    assert ledger_log_scale([37.7, 0.592, 35.8, 0.44, 0.454])
+    assert not ledger_log_scale([3.43, 1.47, 3.4, 1.36, 1.4])
+    assert not ledger_log_scale([5.0, float("nan"), 0.0, -1.0])  # one positive value: nothing to span
+    scales = []
+    orig = matplotlib.axes.Axes.set_yscale
+    monkeypatch.setattr(matplotlib.axes.Axes, "set_yscale",
+                        lambda self, v, **k: (scales.append(v), orig(self, v, **k))[1])
+    hist = pd.DataFrame({"model": ["base", "base+sdf"], "effects": ["", "speed_dependent_friction"],
+                         "cv_rmse": [37.7, 0.592], "cv_rmse_se": [6.8, 0.1], "rmse": [35.8, 0.44],
+                         "noise_sd": [0.454, 0.454], "noise_sd_se": [0.072, 0.072], "unit": ["mm/s"] * 2})
+    plot_ledger(hist, tmp_path / "log.png")
+    assert scales == ["log"]
+    plot_ledger(hist.assign(cv_rmse=[3.43, 1.47], rmse=[3.4, 1.36], noise_sd=1.4), tmp_path / "lin.png")
+    assert scales == ["log"]  # the second stays linear
