@@ -1298,6 +1298,18 @@ def dominant_group(ev: DynEvaluation) -> dict | None:
             "model_spread": spread}
 
 
+def dominant_cause(dom: dict, what: str, sigma: float, unit: str) -> str:
+    """Return the words for what a group holding most of the held-out error (:func:`dominant_group`) may be: a
+    response that depends on the starting state where the fit's spread there exceeds the noise ``sigma``, else a
+    misread (a tracking error, for a ``what`` = "run") or a knife edge."""
+    if dom.get("model_spread", 0.0) > sigma:
+        return (f"the model's response there depends on the starting state (spread {dom['model_spread']:.3g} {unit} "
+                "over starting states 1-10 um apart: coexisting responses), and held out another of them is "
+                "predicted; measure it again, from other starting states")
+    return (("a tracking error in that run" if what == "run" else "a misread there")
+            + ", or a response on a knife edge; measure it again")
+
+
 def knife_edge_runs(bound: DynBound, y, pred, cv_pred, groups, folds, theta, fold_theta: Mapping, sigma: float
                     ) -> list[dict]:
     """Return one record per trajectory run or progression condition on a knife edge of the parameters: held
@@ -1920,13 +1932,7 @@ def dynamics_verdict(base: DynEvaluation, cands: Sequence[dict], noise: dict, si
         what_g = "run" if base.bound.kind == "trajectory" else "condition"
         msg += (f". One {what_g} ({dom['group']}) holds {100 * dom['share']:.0f} % of the held-out squared error of "
                 f"{'the model as is' if rests is base else v.missing_effect} ({dom['cv_rmse']:.3g} {unit}; "
-                f"{dom['cv_rmse_without']:.3g} {unit} without it): "
-                + (f"the model's response there depends on the starting state (spread {dom['model_spread']:.3g} "
-                   f"{unit} over starting states 1-10 um apart: coexisting responses), and held out another of "
-                   "them is predicted; measure it again, from other starting states"
-                   if dom.get("model_spread", 0.0) > sigma else
-                   ("a tracking error in that run" if what_g == "run" else "a misread there")
-                   + ", or a response on a knife edge; measure it again"))
+                f"{dom['cv_rmse_without']:.3g} {unit} without it): {dominant_cause(dom, what_g, sigma, unit)}")
     return {"outcome": v.outcome, "missing_effect": v.missing_effect, "covariate": v.covariate, "regime": regime,
             "dominant_group": dom,
             "period": v.period, "partial": v.partial, "closest": v.closest,
