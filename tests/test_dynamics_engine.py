@@ -127,6 +127,18 @@ def test_brief_grazing_contact_is_found(one_sided):
     assert off[0] - on[0] == pytest.approx(expected, rel=0.05)
 
 
+def _v_rate_cell(c, h: float, kink: float, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return (g, g') on ``t`` in [0, h] for g' piecewise linear: g'(0) = c1, g'(kink h) = c2, g'(h) = c3 (a V or a
+    tent), and g(0) = c0; g is the exact integral of g'."""
+    tk = kink * h
+    dg = np.where(t <= tk, c[1] + (c[2] - c[1]) * t / tk, c[2] + (c[3] - c[2]) * (t - tk) / (h - tk))
+    g1 = c[1] * t + 0.5 * (c[2] - c[1]) * t ** 2 / tk
+    gk = c[1] * tk + 0.5 * (c[2] - c[1]) * tk
+    u = t - tk
+    g2 = gk + c[2] * u + 0.5 * (c[3] - c[2]) * u ** 2 / (h - tk)
+    return c[0] + np.where(t <= tk, g1, g2), dg
+
+
 @settings(max_examples=300, deadline=None)
 @given(c=st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4), h=st.floats(0.05, 2.0),
        kink=st.floats(0.02, 0.98), v_shape=st.booleans())
@@ -137,14 +149,7 @@ def test_twin_reach_bounds_the_minimum_of_a_cell_with_monotone_g2(c, h, kink, v_
     extreme case of the bound: g' a V (or a tent), g'_a = c1, g'(kink h) = c2, g'_b = c3, g(0) = c0."""
     t = np.linspace(0.0, h, 4001)
     if v_shape:
-        tk = kink * h
-        dg = np.where(t <= tk, c[1] + (c[2] - c[1]) * t / tk, c[2] + (c[3] - c[2]) * (t - tk) / (h - tk))
-        # g exactly: the integral of a piecewise linear g'
-        g1 = c[1] * t + 0.5 * (c[2] - c[1]) * t ** 2 / tk
-        gk = c[1] * tk + 0.5 * (c[2] - c[1]) * tk
-        u = t - tk
-        g2 = gk + c[2] * u + 0.5 * (c[3] - c[2]) * u ** 2 / (h - tk)
-        g = c[0] + np.where(t <= tk, g1, g2)
+        g, dg = _v_rate_cell(c, h, kink, t)
     else:
         g = c[0] + c[1] * t + c[2] * t ** 2 + c[3] * t ** 3
         dg = c[1] + 2 * c[2] * t + 3 * c[3] * t ** 2
@@ -161,10 +166,9 @@ def test_twin_reach_is_silent_where_the_rate_only_touches_zero():
     """g' a V from 0.484 down to 0 at 2 % of the cell and back to 0.484 (the case hypothesis found): g rises
     monotonically from g(0) = 0, the only zero of g' is its tip, and twin_reach reports no dip (+inf); the tip
     evaluates to -5.6e-17 on a grid, a rounding the property test above must not read as a sign change."""
-    c1, h, tk = 0.484375, 0.9041703694047741, 0.02 * 0.9041703694047741
+    h = 0.9041703694047741
     t = np.linspace(0.0, h, 4001)
-    dg = np.where(t <= tk, c1 - c1 * t / tk, c1 * (t - tk) / (h - tk))
-    g = np.where(t <= tk, c1 * t - 0.5 * c1 * t ** 2 / tk, 0.5 * c1 * tk + 0.5 * c1 * (t - tk) ** 2 / (h - tk))
+    g, dg = _v_rate_cell([0.0, 0.484375, 0.0, 0.484375], h, 0.02, t)
     assert np.all(np.diff(g) >= 0.0) and g.min() == g[0] == 0.0
     assert dg.min() > -1e-15  # zero up to rounding only
     assert E.twin_reach(g[0], g[-1], dg[0], dg[-1], h) == np.inf
