@@ -31,10 +31,11 @@ QUICK = DL.EFFORTS["quick"]
 PROTO = {"start": "rest", "transient_periods": 40, "recorded_periods": 16}
 DESIGN = pd.DataFrame({"f_Hz": np.tile([30.0, 34.0, 38.0], 2), "Pd_N": np.repeat([0.08, 0.10], 3)})
 CANDIDATES = ["secondary_constraint", "viscous_drag"]
-# ten conditions, periodic for the base model and away from a grazing point: (30 Hz, 0.10 N) of DESIGN sits on
-# one (the velocity there jumps between 0 and 16 mm/s as P_f moves by 4e-4 N), so a fold that leaves it out may
-# predict it badly: 26 of 162 null seeds on DESIGN ended in "the data cannot tell" (no finding); on this design
-# none of 162 did (benchmarks/dynamics_loop_calibration_result.json)
+# ten conditions, periodic for the base model but one (36 Hz / 0.12 N: irregular, windows 0.5 mm/s apart) and
+# away from a grazing point: (30 Hz, 0.10 N) of DESIGN sits on one (the velocity there jumps between 0 and 16 mm/s
+# as P_f moves by 4e-4 N), so a fold that leaves it out may predict it badly: 26 of 162 null seeds on DESIGN ended
+# in "the data cannot tell" (no finding); on this design none of 162 did
+# (benchmarks/dynamics_loop_calibration_result.json)
 TEN_DESIGN = pd.DataFrame({"f_Hz": np.tile([30.0, 32.0, 34.0, 36.0, 38.0], 2), "Pd_N": np.repeat([0.08, 0.12], 5)})
 ROLL_DESIGN = TEN_DESIGN
 FREE_PF = {"value": 0.03, "free": True, "bounds": [0.001, 0.2]}
@@ -126,6 +127,60 @@ def test_no_replicates_hidden_effect_named_and_fitted_to_the_noise(tmp_path):
     win = next(c for c in r["candidates"] if c["effect"] == "secondary_constraint")
     assert win["cv_rmse_not_irregular"] <= 1.5 * NOISE, win["cv_rmse_not_irregular"]
     assert r["noise"]["sd"] < 1.5 * NOISE, r["noise"]
+
+
+def _replicated_ev(y, pred, periodic, spread=8.0):
+    """A progression evaluation as progression_noise reads it: six conditions x 2 replicates (rows 2i, 2i + 1),
+    the conditions not in ``periodic`` predicted irregular with a spread of ``spread`` [mm/s]."""
+    df = pd.DataFrame({"f_Hz": np.repeat([15.0, 18.0, 21.0, 24.0, 27.0, 30.0], 2), "Pd_N": 0.2,
+                       "velocity_mm_s": y})
+    reg = np.repeat(np.isin(np.arange(6), periodic), 2)
+    sim = {"pred": pred, "cls": np.where(reg, "one_impact", "irregular"), "spread": np.where(reg, 0.0, spread)}
+    return SimpleNamespace(bound=SimpleNamespace(df=df, response="velocity_mm_s",
+                                                 model=SimpleNamespace(effect_names=["secondary_constraint"])),
+                           y=y, pred=pred, resid=y - pred, sim=sim, k=2)
+
+
+def test_replicate_noise_leaves_out_the_conditions_predicted_irregular():
+    """A replicate of a chaotic condition (another window of the run, as a lab's repeat) differs by the chaos
+    too, which the error model's spread already holds: pooled with the periodic conditions' replicates it
+    counted the chaos as noise (continuation up, 12 conditions x 2, a secondary constraint hidden: 7.2 mm/s
+    against a generating 0.5). After the fits the estimate pools the conditions the best fit does not predict
+    chaotic (irregular with a spread over windows and starts)."""
+    rng = np.random.default_rng(0)
+    clean = np.repeat([1.0, 5.0, -3.0, 8.0, 20.0, -15.0], 2)
+    y = clean + NOISE * rng.standard_normal(12)
+    y[6:] += [9.0, -7.0, -6.0, 11.0, 10.0, -12.0]  # three chaotic conditions: windows 6-23 mm/s apart
+    from capsule_cli.steps.residual_tests import noise_estimate
+
+    noise = noise_estimate(pd.DataFrame({"f_Hz": np.repeat(np.arange(6.0), 2), "velocity_mm_s": y}),
+                           "velocity_mm_s")
+    assert noise["method"].startswith("replicates") and noise["sd"] > 5.0  # the premise: chaos counted as noise
+    out = DL.progression_noise(noise, [_replicated_ev(y, clean, [0, 1, 2])])
+    pairs = y.reshape(6, 2)[:3]
+    assert out["sd"] == pytest.approx(float(np.sqrt(np.mean(np.diff(pairs, axis=1) ** 2 / 2))), rel=1e-12)
+    assert out["dof"] == 3 and out["reliable"] is True and out["outliers"] == []
+    assert "3 chaotic conditions left out" in out["method"], out["method"]
+    # every condition predicted periodic, or irregular without spread (a long period, the same in every
+    # window, whose replicates differ by the noise only): the estimate stands as it is
+    assert DL.progression_noise(noise, [_replicated_ev(y, clean, range(6))]) is noise
+    assert DL.progression_noise(noise, [_replicated_ev(y, clean, [0, 1, 2], spread=0.0)]) is noise
+
+
+def test_replicate_noise_bounded_by_the_fit_where_too_few_conditions_are_periodic():
+    """One condition predicted periodic (1 degree of freedom of replicates): no estimate from it; the pooled
+    replicate SD (which holds the chaos) and the fit's standardised residual SD are both upper bounds of the
+    noise, and the smaller is used, as without replicates."""
+    rng = np.random.default_rng(1)
+    clean = np.repeat([1.0, 5.0, -3.0, 8.0, 20.0, -15.0], 2)
+    y = clean + NOISE * rng.standard_normal(12) + np.r_[0.0, 0.0, 9.0 * rng.standard_normal(10)]
+    noise = {"sd": 6.0, "se": 1.7, "dof": 6, "reliable": True, "method": "replicates: pooled within-group SD"}
+    ev = _replicated_ev(y, clean, [0])
+    out = DL.progression_noise(noise, [ev])
+    assert out["sd"] == pytest.approx(DL.standardised_residual_sd(ev), rel=1e-12) and out["sd"] < 6.0
+    assert out["method"].startswith("residual SD of the best-fitting model tried (secondary_constraint")
+    assert "smaller than the pooled replicate estimate (6)" in out["method"], out["method"]
+    assert out["residual_because"] == "too few replicates where the fits predict no chaos"
 
 
 def test_no_replicates_difference_estimate_is_only_a_bound(tmp_path):
@@ -478,27 +533,58 @@ UP = {"start": "up", "transient_periods": 40, "recorded_periods": 16}
 UP_DESIGN = pd.DataFrame({"f_Hz": np.tile([15.0, 18.0, 21.0, 24.0, 27.0, 30.0], 2), "Pd_N": np.repeat([0.2, 0.25], 6)})
 
 
-@pytest.mark.parametrize("hidden", [None, "secondary_constraint"])
-def test_continuation_protocol_loop(tmp_path, hidden):
-    """Data run by continuation up in frequency (each frequency from the previous one's end state), the model
-    file saying so: with nothing missing the verdict is null and the model as is is held out at the noise; a
-    hidden secondary constraint is named and, added, held out at the noise on the predictable conditions.
-    Before held-out conditions were predicted within their whole sweep, a fold's conditions ran as a sweep of
-    their own (another history): the null was "the data cannot tell" and the constraint held out at 67 mm/s."""
-    params = {"Pf_N": 0.02} | ({"gap_back_mm": 0.3} if hidden else {})
-    truth = _model(tmp_path, "truth_up", [hidden] if hidden else [], params, protocol=UP)
+def _continuation_diagnose(tmp_path, hidden, params, seed):
+    """diagnose of data run by continuation up over UP_DESIGN (2 replicates), ``hidden`` (or nothing) added to
+    the base with ``params``; the model file says how the data were run."""
+    truth = _model(tmp_path, f"truth_up_{seed}", [hidden] if hidden else [], {"Pf_N": 0.02} | params, protocol=UP)
     base = _model(tmp_path, "base_up", params={"Pf_N": FREE_PF}, protocol=UP)
-    df, path = _progression_data(tmp_path, truth, UP_DESIGN, seed=2, replicates=2)
-    r = DL.run_diagnose(base, df, path, tmp_path / "diag", k_folds=3, seed=0, figures=False, budget=QUICK,
-                        candidates=CANDIDATES)
-    v = r["verdict"]
-    if hidden is None:
-        assert v["outcome"] == "nothing_missing", v["message"]
-        assert r["model_as_is"]["cv_rmse"] <= 1.2 * NOISE
-    else:
-        assert v["missing_effect"] == hidden, v["message"]
-        win = next(c for c in r["candidates"] if c["effect"] == hidden)
-        assert win["cv_rmse_not_irregular"] <= 1.2 * NOISE
+    df, path = _progression_data(tmp_path, truth, UP_DESIGN, seed=seed, replicates=2)
+    return DL.run_diagnose(base, df, path, tmp_path / f"diag{seed}", k_folds=3, seed=0, figures=False,
+                           budget=QUICK, candidates=CANDIDATES)
+
+
+def test_continuation_protocol_loop_nothing_missing(tmp_path):
+    """Data run by continuation up in frequency (each frequency from the previous one's end state), the model
+    file saying so, nothing missing: the verdict is null and the model as is is held out at the noise. Before
+    held-out conditions were predicted within their whole sweep, a fold's conditions ran as a sweep of their own
+    (another history): the verdict was "the data cannot tell"."""
+    r = _continuation_diagnose(tmp_path, None, {}, seed=2)
+    assert r["verdict"]["outcome"] == "nothing_missing", r["verdict"]["message"]
+    assert r["model_as_is"]["cv_rmse"] <= 1.2 * NOISE
+
+
+def test_continuation_protocol_hidden_constraint_named_and_noise_without_the_chaos(tmp_path):
+    """The same sweep with a secondary constraint at the prototype's values hidden (seed 002 Table 2; at the
+    truth 10 of the 12 conditions respond irregularly, most of them chaotically): named, and the noise is
+    estimated from the replicates of the conditions the best fit does not predict chaotic, or bounded by that
+    fit where they are too few. Before, the replicates of every condition were pooled (synth makes a chaotic
+    condition's replicate from a later window, as a lab's repeat would differ): 7.2 mm/s against the
+    generating 0.5 (noise seeds 0-3: 7.08-7.27), so every standardised error was 14x too small; now 0.21, 0.26,
+    0.34 and 0.53 mm/s on seeds 0-3. Held out at the noise once added:
+    test_continuation_constraint_held_out_at_noise (a known miss)."""
+    r = _continuation_diagnose(tmp_path, "secondary_constraint", {}, seed=2)
+    assert r["verdict"]["missing_effect"] == "secondary_constraint", r["verdict"]["message"]
+    assert r["noise"]["sd"] < 1.5 * NOISE, r["noise"]
+    assert "does not predict chaotic" in r["noise"]["method"] or r["noise"]["method"].startswith("residual SD"), \
+        r["noise"]
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=(
+    "known miss (issue 12): a secondary constraint hidden in the 12-condition continuation sweep, most of "
+    "whose conditions respond chaotically, is named on every seed, but once added it is held out at the noise "
+    "on the predictable conditions only on some noise seeds (seeds 0-3, session 27): at the prototype's gap "
+    "(0.1 mm) 1.21, 0.31, 0.35, 0.81 mm/s at the quick effort and 0.40, 0.23, 0.88, 0.13 at the full one; far "
+    "from the effect's start gap (0.3 mm) 0.81, 2.44, 0.52, 1.22 (quick; fitted in the curved (G_2, k_b) "
+    "valley, k_b 2.2e5-2.7e5 N/m against 97,060; docs/notes_issue12_secondary_far_gap.md). Until session 27 "
+    "a CI test asserted the 0.3-mm case on seed 2 alone, where the claim held by that seed's luck"))
+@pytest.mark.parametrize("gap_mm", [0.1, 0.3])
+def test_continuation_constraint_held_out_at_noise(tmp_path, gap_mm):
+    for seed in range(4):
+        r = _continuation_diagnose(tmp_path, "secondary_constraint", {"gap_back_mm": gap_mm}, seed=seed)
+        assert r["verdict"]["missing_effect"] == "secondary_constraint", r["verdict"]["message"]
+        win = next(c for c in r["candidates"] if c["effect"] == "secondary_constraint")
+        assert win["cv_rmse_not_irregular"] <= 1.2 * NOISE, (seed, win["cv_rmse_not_irregular"])
 
 
 def test_probe_at_the_noise_where_the_best_built_in_is_not_names_the_covariate():

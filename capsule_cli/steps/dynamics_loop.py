@@ -71,7 +71,7 @@ from ..tables import (Column, TableSchema, is_synthetic, provenance, write_json_
                       write_table, write_text_atomic)
 from . import crossval
 from .residual_tests import (correct_for_correlation, is_ordered, noise_estimate, numeric_covariates,
-                             serial_correlation, structure_tests)
+                             replicate_groups, serial_correlation, structure_tests)
 from .verdict import (ALPHA_EFFECT, EXCESS_Z, RULE_TEXT, FitSummary, Noise, decide_verdict, nested_f_test,
                       noise_expectation, winner_excess)
 
@@ -1497,15 +1497,17 @@ def trajectory_noise(noise: dict, evs: Sequence[DynEvaluation]) -> dict:
                            "which frames that undersample the motion inflate; an upper bound of the noise")
 
 
-def _residual_noise(noise: dict, sd: float, best: DynEvaluation, what: str, why: str) -> dict:
+def _residual_noise(noise: dict, sd: float, best: DynEvaluation, what: str, why: str,
+                    other: str = "difference-based estimate") -> dict:
     """Return ``noise`` with its SD replaced by ``sd``, the residual SD of ``best`` (n - k degrees of
-    freedom), and the method saying so (``what``: the rows and parameters; ``why``: why not the differences)."""
+    freedom), and the method saying so (``what``: the rows and parameters; ``why``: why not ``other``, the
+    estimate it replaces)."""
     n, k = best.y.size, best.k
     name = "+".join(best.bound.model.effect_names) or "the model as is"
     return {**noise, "sd": sd, "se": sd / math.sqrt(2 * (n - k)), "dof": int(n - k), "reliable": True,
             "correlated": None, "residual_of": name,
             "method": (f"residual SD of the best-fitting model tried ({name}, {what}): smaller than the "
-                       f"difference-based estimate ({noise['sd']:.3g}), {why}")}
+                       f"{other} ({noise['sd']:.3g}), {why}")}
 
 
 def serial_noise(rf: pd.DataFrame, evs: Sequence[DynEvaluation], z) -> dict | None:
@@ -1615,29 +1617,97 @@ def standardised_residual_sd(ev: DynEvaluation) -> float:
     return math.sqrt(max(sig2, 0.0))
 
 
-def progression_noise(noise: dict, evs: Sequence[DynEvaluation]) -> dict:
-    """Return the noise estimate of a progression table without replicates: the smaller of the
-    difference-based estimate and the smallest standardised residual SD (:func:`standardised_residual_sd`,
-    n - k degrees of freedom) of the models tried.
+#: fewest degrees of freedom of replicates at conditions not predicted chaotic for a noise estimate from them
+#: (residual_tests.noise_estimate asks the same of a table's replicates)
+MIN_REPLICATE_DOF = 3
 
-    Differences of neighbouring conditions measure the noise only where the response is smooth along the
-    covariate; a progression speed jumps between neighbouring frequencies as impacts appear and vanish
-    (40-condition grid, 0.5 mm/s noise, one value per condition: 20.6 mm/s from differences). Both are
-    upper bounds of the noise; the smaller is used and the method says which. With replicates the
-    replicate estimate stands.
+
+def replicate_noise_without_chaos(noise: dict, best: DynEvaluation) -> dict | None:
+    """Return the replicate noise estimate of a progression table pooled over the conditions
+    whose response ``best`` (the best-fitting model tried) does not predict chaotic, ``noise`` itself when it
+    predicts none so, or None when fewer than MIN_REPLICATE_DOF degrees of freedom of replicates would be
+    left (:func:`progression_noise` then bounds the noise by the fit).
+
+    A replicate of a chaotic condition (another recorded window, as a lab's repeat) differs from the first
+    reading by the chaos as well as by the instrument's noise; that spread is the error model's
+    (``sim['spread']``), so pooled into the noise it counts twice and shrinks every standardised error.
+    Continuation up, 12 conditions x 2 replicates, a secondary constraint at the prototype's values hidden,
+    noise 0.5 mm/s: the replicates of every condition gave 7.2 mm/s. Chaotic here: irregular (no period <= 8)
+    with a spread over windows and starts of at least MULTISTABLE_SPREAD_FRACTION of the noise SD, iterated to
+    a fixed point (at most 5 rounds), as the spread's threshold moves with the estimate. Kept: an irregular
+    response without spread (a long period, the same in every window: null sweeps, continuation up, hold two
+    or three) and a periodic one with coexisting attractors (a later window stays on its attractor). Leaving
+    those out cost null sweeps their degrees of freedom: one of the first 47 seeds of the up sweep went from
+    "nothing is missing" to "the data cannot tell" (0.58 -> 0.24 mm/s).
+
+    The estimate is the table's own (residual_tests.noise_estimate, its outlier test included) on the rows
+    left: a condition the fit predicts periodic whose replicates differ grossly (the fit wrong there, or a
+    repeat on another attractor) is an outlier like any other."""
+    cls = np.asarray(best.sim["cls"]).astype(str)
+    spread = np.nan_to_num(np.asarray(best.sim["spread"], float))
+    df = best.bound.df.reset_index(drop=True)
+    resp = best.bound.response
+    sd, rows, out = float(noise["sd"]), None, noise
+    for _ in range(5):
+        keep = ~((cls == "irregular") & (spread >= MULTISTABLE_SPREAD_FRACTION * sd))
+        if rows is not None and np.array_equal(keep, rows):
+            break
+        rows = keep
+        if keep.all():
+            return noise
+        est = noise_estimate(df[keep], resp)
+        if not str(est.get("method", "")).startswith("replicates") or est["dof"] < MIN_REPLICATE_DOF:
+            return None
+        idx = np.flatnonzero(keep)
+        left_out = int(replicate_groups(df[~keep], resp).max(initial=-1) + 1)
+        name = "+".join(best.bound.model.effect_names) or "the model as is"
+        out = {**est, "outliers": [int(idx[i]) for i in est.get("outliers", [])],
+               "method": (f"{est['method']}, over the conditions {name} (the best-fitting model tried) does not "
+                          f"predict chaotic: the replicates of {left_out} chaotic conditions left out (they differ "
+                          f"by the chaos too, which the error model's spread holds; all conditions: "
+                          f"{float(noise['sd']):.3g})")}
+        sd = float(est["sd"])
+    return out
+
+
+def progression_noise(noise: dict, evs: Sequence[DynEvaluation]) -> dict:
+    """Return the noise estimate of a progression table after the fits ``evs``.
+
+    Without replicates: the smaller of the difference-based estimate and the smallest standardised residual
+    SD (:func:`standardised_residual_sd`, n - k degrees of freedom) of the models tried. Differences of
+    neighbouring conditions measure the noise only where the response is smooth along the covariate; a
+    progression speed jumps between neighbouring frequencies as impacts appear and vanish (40-condition
+    grid, 0.5 mm/s noise, one value per condition: 20.6 mm/s from differences). Both are upper bounds of
+    the noise; the smaller is used and the method says which.
+
+    With replicates: the replicate estimate over the conditions the best-fitting model does not predict
+    chaotic (:func:`replicate_noise_without_chaos`).
     """
-    if str(noise.get("method", "")).startswith("replicates") or not evs:
+    if not evs:
         return noise
     fits = [(standardised_residual_sd(e), e) for e in simulated_everywhere(evs) if e.y.size - e.k >= 3]
     if not fits:
         return noise
     sd, best = min(fits, key=lambda t: t[0])
+    why = ("which a speed that jumps between neighbouring conditions inflates; no replicates: an upper bound of "
+           "the noise")
+    if str(noise.get("method", "")).startswith("replicates"):
+        calm = replicate_noise_without_chaos(noise, best)
+        if calm is not None:
+            return calm
+        # the replicates of the conditions not predicted chaotic are too few: the pooled estimate (which holds
+        # the chaotic conditions' spread) and the fit's standardised residual SD are both upper bounds
+        why = (f"whose replicates of chaotic conditions hold the chaos, the others' too few for an estimate "
+               f"(fewer than {MIN_REPLICATE_DOF} degrees of freedom)")
     if not (sd > 0) or (np.isfinite(noise["sd"]) and noise["sd"] <= sd):
         return noise
-    return _residual_noise(noise, sd, best, f"{best.y.size} conditions, {best.k} free parameters, standardised by "
-                           "the model's spread where the response is irregular",
-                           "which a speed that jumps between neighbouring conditions inflates; no replicates: "
-                           "an upper bound of the noise")
+    other = ("pooled replicate estimate" if str(noise.get("method", "")).startswith("replicates")
+             else "difference-based estimate")
+    out = _residual_noise(noise, sd, best, f"{best.y.size} conditions, {best.k} free parameters, standardised by "
+                          "the model's spread where the response is irregular", why, other)
+    if other.startswith("pooled"):
+        out["residual_because"] = "too few replicates where the fits predict no chaos"
+    return out
 
 
 #: A progression fit is refined once (:func:`refit_with_noise`) when the noise estimate revised after the fits is
@@ -1910,7 +1980,8 @@ def dynamics_verdict(base: DynEvaluation, cands: Sequence[dict], noise: dict, si
         c["delta_cv"], c["delta_cv_se"] = crossval.paired_difference(base.cv_sq, ev.cv_sq, base.groups)
         c["delta_bic"] = ev.bic - base.bic
     nz = Noise(float(sigma), float(noise.get("se") or 0.0), bool(noise.get("reliable", True)),
-               str(noise.get("method", "")), noise.get("correlated"), str(noise.get("residual_of", "")))
+               str(noise.get("method", "")), noise.get("correlated"), str(noise.get("residual_of", "")),
+               str(noise.get("residual_because", "no replicates")))
     v = decide_verdict(base.y, summary_of(base), sums, nz, {c: rf[c].to_numpy(float) for c in covs}, struct,
                        base.groups, int(np.unique(base.folds).size),
                        ordered=[c for c in covs if is_ordered(c)], unit=unit, response=what,

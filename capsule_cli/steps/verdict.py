@@ -156,6 +156,8 @@ class Noise:
     #: the residual SD of a fitted model (no replicates): at most the noise when that model fits, more when
     #: it does not, so held-out errors compared with it cannot show that model's own misfit
     residual_of: str = ""
+    #: why the noise is that residual SD: "no replicates", or too few replicates where no chaos is predicted
+    residual_because: str = "no replicates"
 
 
 @dataclass
@@ -647,7 +649,7 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
     excess = noise.reliable and np.isfinite(expect) and cv_base > expect + z_ex * comb_se
     noise_txt = (f"the noise cannot be estimated (data spread {_g(noise.sd)} {unit} is only an upper bound)"
                  if not noise.reliable else
-                 f"noise at most {_g(noise.sd)} ± {_g(noise.se)} {unit} (no replicates: the residual SD of "
+                 f"noise at most {_g(noise.sd)} ± {_g(noise.se)} {unit} ({noise.residual_because}: the residual SD of "
                  f"{noise.residual_of}, more than the noise if that model misses something; replicates would tell)"
                  if noise.residual_of else f"noise {_g(noise.sd)} ± {_g(noise.se)} {unit}")
     corr_txt = ""
