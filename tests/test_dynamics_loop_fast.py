@@ -141,7 +141,7 @@ def _replicated_ev(y, pred, periodic, spread=8.0):
                            y=y, pred=pred, resid=y - pred, sim=sim, k=2)
 
 
-def test_replicate_noise_leaves_out_the_conditions_predicted_irregular():
+def test_replicate_noise_leaves_out_the_conditions_predicted_chaotic():
     """A replicate of a chaotic condition (another window of the run, as a lab's repeat) differs by the chaos
     too, which the error model's spread already holds: pooled with the periodic conditions' replicates it
     counted the chaos as noise (continuation up, 12 conditions x 2, a secondary constraint hidden: 7.2 mm/s
@@ -167,7 +167,7 @@ def test_replicate_noise_leaves_out_the_conditions_predicted_irregular():
     assert DL.progression_noise(noise, [_replicated_ev(y, clean, [0, 1, 2], spread=0.0)]) is noise
 
 
-def test_replicate_noise_bounded_by_the_fit_where_too_few_conditions_are_periodic():
+def test_replicate_noise_bounded_by_the_fit_where_the_chaos_leaves_too_few_replicates():
     """One condition predicted periodic (1 degree of freedom of replicates): no estimate from it; the pooled
     replicate SD (which holds the chaos) and the fit's standardised residual SD are both upper bounds of the
     noise, and the smaller is used, as without replicates."""
