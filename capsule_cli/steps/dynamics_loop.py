@@ -1497,13 +1497,18 @@ def trajectory_noise(noise: dict, evs: Sequence[DynEvaluation]) -> dict:
                            "which frames that undersample the motion inflate; an upper bound of the noise")
 
 
+def _model_label(ev: DynEvaluation) -> str:
+    """Return the name of ``ev``'s model in a noise method: its effects joined by +, or "the model as is"."""
+    return "+".join(ev.bound.model.effect_names) or "the model as is"
+
+
 def _residual_noise(noise: dict, sd: float, best: DynEvaluation, what: str, why: str,
                     other: str = "difference-based estimate") -> dict:
     """Return ``noise`` with its SD replaced by ``sd``, the residual SD of ``best`` (n - k degrees of
     freedom), and the method saying so (``what``: the rows and parameters; ``why``: why not ``other``, the
     estimate it replaces)."""
     n, k = best.y.size, best.k
-    name = "+".join(best.bound.model.effect_names) or "the model as is"
+    name = _model_label(best)
     return {**noise, "sd": sd, "se": sd / math.sqrt(2 * (n - k)), "dof": int(n - k), "reliable": True,
             "correlated": None, "residual_of": name,
             "method": (f"residual SD of the best-fitting model tried ({name}, {what}): smaller than the "
@@ -1660,11 +1665,10 @@ def replicate_noise_without_chaos(noise: dict, best: DynEvaluation) -> dict | No
             return None
         idx = np.flatnonzero(keep)
         left_out = int(replicate_groups(df[~keep], resp).max(initial=-1) + 1)
-        name = "+".join(best.bound.model.effect_names) or "the model as is"
         out = {**est, "outliers": [int(idx[i]) for i in est.get("outliers", [])],
-               "method": (f"{est['method']}, over the conditions {name} (the best-fitting model tried) does not "
-                          f"predict chaotic: the replicates of {left_out} chaotic conditions left out (they differ "
-                          f"by the chaos too, which the error model's spread holds; all conditions: "
+               "method": (f"{est['method']}, over the conditions {_model_label(best)} (the best-fitting model tried) "
+                          f"does not predict chaotic: the replicates of {left_out} chaotic conditions left out (they "
+                          f"differ by the chaos too, which the error model's spread holds; all conditions: "
                           f"{float(noise['sd']):.3g})")}
         sd = float(est["sd"])
     return out
@@ -1691,7 +1695,8 @@ def progression_noise(noise: dict, evs: Sequence[DynEvaluation]) -> dict:
     sd, best = min(fits, key=lambda t: t[0])
     why = ("which a speed that jumps between neighbouring conditions inflates; no replicates: an upper bound of "
            "the noise")
-    if str(noise.get("method", "")).startswith("replicates"):
+    replicated = str(noise.get("method", "")).startswith("replicates")
+    if replicated:
         calm = replicate_noise_without_chaos(noise, best)
         if calm is not None:
             return calm
@@ -1701,11 +1706,10 @@ def progression_noise(noise: dict, evs: Sequence[DynEvaluation]) -> dict:
                f"(fewer than {MIN_REPLICATE_DOF} degrees of freedom)")
     if not (sd > 0) or (np.isfinite(noise["sd"]) and noise["sd"] <= sd):
         return noise
-    other = ("pooled replicate estimate" if str(noise.get("method", "")).startswith("replicates")
-             else "difference-based estimate")
     out = _residual_noise(noise, sd, best, f"{best.y.size} conditions, {best.k} free parameters, standardised by "
-                          "the model's spread where the response is irregular", why, other)
-    if other.startswith("pooled"):
+                          "the model's spread where the response is irregular", why,
+                          "pooled replicate estimate" if replicated else "difference-based estimate")
+    if replicated:
         out["residual_because"] = "too few replicates where the fits predict no chaos"
     return out
 
