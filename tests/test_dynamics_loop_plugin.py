@@ -42,7 +42,7 @@ def plugin(tmp_path):
     path.write_text(PLUGIN)
     registry.load_plugins([path], entry_points=False)
     yield path
-    registry._EFFECTS.pop(("progression", "coil_saturation"), None)  # keep other tests' candidates unchanged
+    registry.unregister_effect("progression", "coil_saturation")  # keep other tests' candidates unchanged
     registry._LOADED_PLUGINS.discard(str(path.resolve()))
 
 

@@ -41,7 +41,7 @@ def plugin(tmp_path):
     path.write_text(PLUGIN)
     registry.load_plugins([path], entry_points=False)
     yield path
-    registry._EFFECTS.pop(("progression", "magnet_attraction"), None)  # keep other tests' candidates unchanged
+    registry.unregister_effect("progression", "magnet_attraction")  # keep other tests' candidates unchanged
     registry._LOADED_PLUGINS.discard(str(path.resolve()))
 
 

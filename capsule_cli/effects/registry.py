@@ -44,9 +44,10 @@ entry-point group ``capsule_cli.effects`` that registers effects::
 From then on the effect is listed by ``effects list``, usable in model files
 and ``synth``, fitted by ``compare`` and tried by ``diagnose``.
 
-Dynamics plugins (kinds ``progression`` and ``trajectory``) change the equations of motion and come in
-two roles: ``role="drive"``, a per-row drive transform ``apply(f_Hz, Pd_N, duty, p) -> (f_Hz, Pd_N,
-duty)`` (p: dict of SI values by base name); and ``role="force"``, an extra force of state and time::
+Dynamics plugins (kinds ``progression`` and ``trajectory``; one registered with either kind is an effect of
+both, as the two share the equations of motion) change the equations of motion and come in two roles:
+``role="drive"``, a per-row drive transform ``apply(f_Hz, Pd_N, duty, p) -> (f_Hz, Pd_N, duty)`` (p: dict of
+SI values by base name); and ``role="force"``, an extra force of state and time::
 
     @register_effect(name="magnet_attraction", kind="progression", role="force",
                      params=(Param("attraction_mN", 2.0, (0.0, 100.0), off=0.0),
@@ -80,6 +81,8 @@ from ..units import UNITS, split_unit, unit_label
 
 #: the quasi-static kinds this registry serves now (dynamics kinds come later)
 KINDS = ("friction", "pressure", "relaxation", "progression", "trajectory")
+#: the kinds whose effects change the equations of motion (the vibro-impact engine's; one physics for both)
+DYNAMICS_KINDS = ("progression", "trajectory")
 
 ENTRY_POINT_GROUP = "capsule_cli.effects"
 
@@ -317,16 +320,29 @@ def _add_effect(eff: Effect) -> None:
         raise ValueError(f"effect '{eff.name}': nests must be pairs (another effect's name, the setting where "
                          "this one reduces to it, in words)")
     _check_nest_starts(eff)
-    if eff.role and eff.kind not in ("progression", "trajectory"):
+    if eff.role and eff.kind not in DYNAMICS_KINDS:
         raise ValueError(f"effect '{eff.name}': a drive transform or force is a progression or trajectory effect")
     for cov in eff.covariates:
         if split_unit(cov)[1] is None:
             raise ValueError(f"effect '{eff.name}': covariate '{cov}' needs a unit suffix (e.g. 'temperature_C')")
-    key = (eff.kind, eff.name)
-    old = _EFFECTS.get(key)
-    if old is not None and old.origin != eff.origin:
-        raise ValueError(f"effect '{eff.name}' ({eff.kind}) is already registered by {old.origin}")
-    _EFFECTS[key] = eff
+    # a dynamics effect changes the equations of motion, which progression speeds and trajectories share: one
+    # registered for either kind is registered for both (as the built-in ones are), so that a user's plugin
+    # works in a trajectory model as in a progression one
+    kinds = DYNAMICS_KINDS if eff.kind in DYNAMICS_KINDS else (eff.kind,)
+    for kind in kinds:
+        old = _EFFECTS.get((kind, eff.name))
+        if old is not None and old.origin != eff.origin:
+            raise ValueError(f"effect '{eff.name}' ({kind}) is already registered by {old.origin}")
+    for kind in kinds:
+        _EFFECTS[(kind, eff.name)] = eff if kind == eff.kind else Effect(**{**eff.__dict__, "kind": kind})
+
+
+def unregister_effect(kind: str, name: str) -> None:
+    """Remove the effect ``name`` of ``kind`` (of both dynamics kinds for a dynamics one, as it was registered),
+    e.g. a plugin's that a test loaded (the file stays loaded; see ``_LOADED_PLUGINS``). Unknown names are
+    ignored."""
+    for k in DYNAMICS_KINDS if kind in DYNAMICS_KINDS else (kind,):
+        _EFFECTS.pop((k, name), None)
 
 
 def register_base(model: BaseModel) -> BaseModel:
@@ -353,8 +369,9 @@ _PROBES: dict[tuple[str, str], Effect] = {}
 
 
 def register_probe(eff: Effect) -> Effect:
-    """Register a covariate probe (see ``_PROBES``)."""
-    _PROBES[(eff.kind, eff.name)] = eff
+    """Register a covariate probe (see ``_PROBES``); a dynamics one for both dynamics kinds, as effects are."""
+    for kind in DYNAMICS_KINDS if eff.kind in DYNAMICS_KINDS else (eff.kind,):
+        _PROBES[(kind, eff.name)] = eff if kind == eff.kind else Effect(**{**eff.__dict__, "kind": kind})
     return eff
 
 

@@ -73,7 +73,7 @@ from . import crossval
 from .residual_tests import (correct_for_correlation, is_ordered, noise_estimate, numeric_covariates,
                              replicate_groups, serial_correlation, structure_tests)
 from .verdict import (ALPHA_EFFECT, EXCESS_Z, RULE_TEXT, FitSummary, Noise, decide_verdict, nested_f_test,
-                      noise_expectation, winner_excess)
+                      noise_expectation, rss_pair, winner_excess)
 
 DYN_KINDS = ("progression", "trajectory")
 #: response classes of dynamics.system.progression (contract section 2, verdict.regime)
@@ -89,8 +89,8 @@ RUN_CLASS_PROTOCOL = dsys.Protocol("rest", 60, 16)
 #: best-fitting models of the previous pass (:func:`modes_of_best`); 3 = the model as is's modes, then at
 #: most two changes (a change of modes refits every model once, about doubling the time).
 MODE_PASSES = 3
-#: covariate probes (progression): fitted when the best built-in candidate leaves a held-out error above
-#: this fraction of the model as is's (it removes less than 1 - 0.5^2 = 75 % of the squared error; a
+#: covariate probes (progression and trajectory): fitted when the best built-in candidate leaves a held-out
+#: error above this fraction of the model as is's (it removes less than 1 - 0.5^2 = 75 % of the squared error; a
 #: hidden built-in effect on the 40-condition grid leaves 2-5 %); see :func:`probe_verdict`
 PROBE_TRIGGER = 0.5
 #: a probe overrides the built-in verdict only when its held-out RMSE is below the best built-in's by more
@@ -264,11 +264,12 @@ class DynBound(FreeParams):
         #: effects that scale the friction level at each condition by a function of a covariate (role "friction":
         #: the friction probes of diagnose), with their covariate
         self.friction_mods = [(e, e.covariates[0]) for e in model.effects if e.role == "friction"]
-        if self.friction_mods and self.kind != "progression":
-            raise NotImplementedError("a friction level set by a covariate is simulated for progression tables only")
         for e, cov in self.friction_mods:
             if cov not in self.df.columns:
                 raise InputError(f"{self.where}: effect '{e.name}' needs the column '{cov}'")
+            if self.kind == "trajectory" and (self.df.groupby("run", sort=False)[cov].nunique() > 1).any():
+                raise InputError(f"{self.where}: effect '{e.name}' sets a run's friction level from '{cov}', "
+                                 "which changes within a run")
         if self.kind == "progression":
             cols = [c for c in DRIVE_COLS + ("Pf_N",) if c in self.df.columns]
             cols += [cov for _, cov in self.friction_mods if cov not in cols]
@@ -292,6 +293,19 @@ class DynBound(FreeParams):
 
     def system(self, theta=None) -> dsys.DynSystem:
         return dsys.build_system(self.model.base.name, self.params_by_name(theta), self.model.effect_names)
+
+    def run_system(self, sysm: dsys.DynSystem, theta, run: str) -> dsys.DynSystem:
+        """Return trajectory ``run``'s system: ``sysm`` with its friction level P_f times the factors of the
+        effects of role "friction" at the run's covariate values (:meth:`condition_pf` for progressions);
+        ``sysm`` itself when the model has none."""
+        if not self.friction_mods:
+            return sysm
+        by_name = self.params_by_name(theta)
+        row = dict(self.runs)[run].iloc[0]
+        pf = float(sysm.Pf_N)
+        for eff, cov in self.friction_mods:
+            pf *= float(eff.apply(float(row[cov]), {prm.key: float(by_name[prm.name]) for prm in eff.params}))
+        return replace(sysm, Pf_N=pf)
 
     # -- rows
     def _build_rows(self):
@@ -467,8 +481,8 @@ class DynBound(FreeParams):
             f, pdn, duty, wf = self.run_drive[r]
             k = max(int(math.floor(d["time_s"].max() * f + 1e-9)), 1)
             with engine_threads(1):
-                pr = dsys.progression(sysm, [f], [pdn], duty=duty, waveform=wf, protocol=RUN_CLASS_PROTOCOL,
-                                      options=self.options)
+                pr = dsys.progression(self.run_system(sysm, theta, r), [f], [pdn], duty=duty, waveform=wf,
+                                      protocol=RUN_CLASS_PROTOCOL, options=self.options)
             out[r] = pr.iloc[0].to_dict() | {"periods": k}
         return out
 
@@ -486,7 +500,7 @@ class DynBound(FreeParams):
         f, pdn, duty, wf = self.run_drive[run]
         t = d["time_s"].to_numpy(float)
         try:
-            sysm = self.system(theta)
+            sysm = self.run_system(self.system(theta), theta, run)
 
             def path(x0: float) -> np.ndarray:
                 return dsys.trajectory(sysm, f, pdn, t, duty=duty, waveform=wf, options=self.options,
@@ -538,8 +552,8 @@ class DynBound(FreeParams):
                 if mode == "position":
                     if r not in pos:
                         dd = d[d["time_s"] <= t_max[r]] if r in t_max else d
-                        tr = dsys.trajectory(sysm, f, pdn, dd["time_s"].to_numpy(float), duty=duty, waveform=wf,
-                                             options=self.options)
+                        tr = dsys.trajectory(self.run_system(sysm, theta, r), f, pdn, dd["time_s"].to_numpy(float),
+                                             duty=duty, waveform=wf, options=self.options)
                         pos[r] = pd.Series(tr[self.response], index=dd.index)
                     pred[j] = pos[r].get(i, np.nan)
                     spread[j] = 0.0
@@ -547,14 +561,15 @@ class DynBound(FreeParams):
                     # run's frames as the observed one is from the data's (run_drift); spread from the window SD.
                     # A run also compared by position up to its horizon was simulated at every frame above
                     if r not in pos or len(pos[r]) < len(d):
-                        tr = dsys.trajectory(sysm, f, pdn, d["time_s"].to_numpy(float), duty=duty, waveform=wf,
-                                             options=self.options)
+                        tr = dsys.trajectory(self.run_system(sysm, theta, r), f, pdn, d["time_s"].to_numpy(float),
+                                             duty=duty, waveform=wf, options=self.options)
                         pos[r] = pd.Series(tr[self.response], index=d.index)
                     dur, pred[j] = run_drift(d.loc[pos[r].index, "time_s"].to_numpy(float), pos[r].to_numpy(float), f)
                     spread[j] = ((s["window_sd_mm_s"] / 2) * dur if s and s["response_class"] == "irregular"
                                  else 0.0)
                     if starts:
-                        spread[j] = max(spread[j], self._drift_start_sd(sysm, r, pred[j]))
+                        spread[j] = max(spread[j], self._drift_start_sd(self.run_system(sysm, theta, r), r,
+                                                                        pred[j]))
         except (InputError, RuntimeError, ValueError, FloatingPointError):
             pass  # rows not reached stay NaN (a large penalty in the costs)
         return {"pred": pred, "spread": spread, "cls": cls, "by_position": by_position, "noise_factor": fac}
@@ -1526,7 +1541,7 @@ def serial_noise(rf: pd.DataFrame, evs: Sequence[DynEvaluation], z) -> dict | No
     noise's slow wander as structure: null data with AR(1) position noise (lag-1 correlation 0.8 at 100
     frames/s, SD 0.2 mm, five 1.5-s runs) gave "an effect that is not built in depends on time_s" (runs test
     p = 2.4e-14). With the correlation the rule tests along time against it (periodogram against red noise,
-    F tests on whitened residuals; residual_tests.structure_tests, verdict._rss_pair)."""
+    F tests on whitened residuals; residual_tests.structure_tests, verdict.rss_pair)."""
     cols = [c for c in rf.columns if is_ordered(c)]
     evs = simulated_everywhere(evs)
     if not cols or not evs:
@@ -2034,10 +2049,11 @@ def dynamics_covariates(rf: pd.DataFrame, response: str) -> list[str]:
     return [c for c in first + extra if rf[c].nunique() >= 2]
 
 
-def column_probes(rf: pd.DataFrame, covs: Sequence[str]) -> list[Effect]:
+def column_probes(rf: pd.DataFrame, covs: Sequence[str], kind: str = "progression") -> list[Effect]:
     """Return the friction probes of the table's own covariates (not the drive's, which have theirs; not
     time): a table column that varies over at least three values gets
-    :func:`capsule_cli.effects.dynamics.column_friction_probe` with its median and half its range."""
+    :func:`capsule_cli.effects.dynamics.column_friction_probe` with its median and half its range (trajectories:
+    a column constant within each run, the runs' friction levels)."""
     from ..effects.dynamics import PROBE_REFERENCE, column_friction_probe
 
     out = []
@@ -2045,6 +2061,11 @@ def column_probes(rf: pd.DataFrame, covs: Sequence[str]) -> list[Effect]:
         if c in PROBE_REFERENCE or c in ("time_s", "duty") or rf[c].nunique() < 3:
             continue
         x = rf[c].to_numpy(float)
+        if kind == "trajectory":
+            per_run = rf.groupby("run", sort=False)[c]
+            if (per_run.nunique() > 1).any():
+                continue  # it changes within a run: not a run's friction level
+            x = per_run.first().to_numpy(float)
         out.append(column_friction_probe(c, float(np.median(x)), float(np.ptp(x)) / 2.0))
     return out
 
@@ -2326,10 +2347,13 @@ def probe_verdict(base: DynEvaluation, cands: Sequence[dict], probes: Sequence[d
     m = len(cands) + len(probes)
     n = base.y.size
     best_b = min(cands, key=lambda c: c["ev"].cv_rmse) if cands else None
+    corr = (noise or {}).get("correlated")
     ok = []
     for p in probes:
         ev = p["ev"]
-        _, pv = nested_f_test(base.rss, base.k, ev.rss, ev.k, n)
+        # under serially correlated noise (frames of a video track) whitened, as the candidates' F test is
+        rss0, rss1 = rss_pair(base.y, summary_of(base), summary_of(ev), corr) if corr else (base.rss, ev.rss)
+        _, pv = nested_f_test(rss0, base.k, rss1, ev.k, n)
         p["f_test_p"] = pv
         p["f_test_p_adjusted"] = min(1.0, pv * m) if np.isfinite(pv) else float("nan")
         ref = base if best_b is None or best_b["ev"].cv_rmse > base.cv_rmse else best_b["ev"]
@@ -2436,11 +2460,13 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
         # frames of a video track: the camera's position noise is often correlated from frame to frame
         corr = serial_noise(rf, [base] + [c["ev"] for c in cands], z)
     probes = []
-    if bound.kind == "progression" and needs_probes(base, cands):
+    if needs_probes(base, cands):
         # no built-in explains the data: which covariate does the missing effect depend on? (probe_verdict)
         # the table's own columns' probes are made for this table (their reference is its median): they replace
-        # any of the same name an earlier table left in the registry
-        pool = {pe.name: pe for pe in registry.probes(model.kind)} | {pe.name: pe for pe in column_probes(rf, covs)}
+        # any of the same name an earlier table left in the registry. Trajectories: over the runs' drives, and
+        # a friction level per run
+        pool = {pe.name: pe for pe in registry.probes(model.kind)}
+        pool |= {pe.name: pe for pe in column_probes(rf, covs, bound.kind)}
         for pe in pool.values():
             if pe.covariates[0] in rf.columns and rf[pe.covariates[0]].nunique() >= 3:
                 probes.append(fit_candidate(model, pe, df, base, data_path, budget, seed))
@@ -2456,13 +2482,14 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
         c["structure"] = record_serial(structure_tests(rf, np.nan_to_num(z(c["ev"])), covs, correlation=corr), rf,
                                        corr)
     if bound.kind == "trajectory":
-        noise = correlated_noise(trajectory_noise(noise, [base] + [c["ev"] for c in cands]), corr)
+        # every model fitted bounds the noise, the probes too (as refit_progression's revision counts them)
+        noise = correlated_noise(trajectory_noise(noise, [base] + [c["ev"] for c in cands + probes]), corr)
         reliable = bool(noise.get("reliable", True))
         if reliable and 0 < float(noise["sd"]) < sigma:
             # the spreads (irregular runs, knife edges) weigh against the noise, not against its upper bound
             # from frame differences (as for progressions above)
             base = base.with_sigma(float(noise["sd"]))
-            for c in cands:
+            for c in cands + probes:
                 c["ev"] = c["ev"].with_sigma(float(noise["sd"]))
     sig_v = float(noise["sd"]) if reliable else sigma
     # over a few runs the held-out error of a correct model is what its parameters' error makes it on these runs:
@@ -2528,11 +2555,12 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
         "rule": RULE_TEXT + (" Dynamics: the F test and held-out errors use residuals standardised by the error "
                              "model (noise and the window spread of irregular responses); the regime is the "
                              "response class where the model as is misfits most."
-                             + (" Progression: when no built-in candidate explains the data, covariate probes "
-                                "(the drive force scaled by a power of one covariate) are fitted; one that passes "
-                                "the F test (Bonferroni over candidates and probes) and beats every built-in by "
-                                f"more than {PROBE_Z:g} standard errors of held-out RMSE names its covariate "
-                                "(an effect that is not built in)." if model.kind == "progression" else "")),
+                             + " When no built-in candidate explains the data, covariate probes (the drive force "
+                               "or the friction level scaled by a function of one covariate: a drive, or a column "
+                               "the table brings; for trajectories a run's) are fitted; one that passes the F test "
+                               "(Bonferroni over candidates and probes) and beats every built-in by more than "
+                               f"{PROBE_Z:g} standard errors of held-out RMSE, or is held out at the noise where the "
+                               "best built-in is not, names its covariate (an effect that is not built in)."),
         "budget": {**budget.__dict__, "seconds": time.perf_counter() - t0,
                    "base_seconds": base.seconds, "base_evaluations": bound.n_sim},
     }

@@ -115,7 +115,7 @@ class FitSummary:
     structure : residual-structure records of its in-sample residuals (see residual_tests.structure_tests)
     at_bound : names of the effect's parameters that ended at a bound (its form strained to fit)
     resid : in-sample residuals the direct comparison of two fits (:func:`rank_supported`) and the whitened
-        F test under serially correlated noise (:func:`_rss_pair`) use, when they are not y - pred [response
+        F test under serially correlated noise (:func:`rss_pair`) use, when they are not y - pred [response
         unit]: dynamics give theirs standardised by the error model (r sigma / SD_i), so that a chaotic
         response's spread counts as noise there as it does in ``rss``
     """
@@ -524,7 +524,7 @@ def whitened_rss(r: np.ndarray, order: np.ndarray, segment: np.ndarray, rho: flo
     return float(w @ w)
 
 
-def _rss_pair(y, base: FitSummary, c: FitSummary, corr: dict | None) -> tuple[float, float]:
+def rss_pair(y, base: FitSummary, c: FitSummary, corr: dict | None) -> tuple[float, float]:
     """Return (RSS of the model as is, RSS of the candidate); whitened with the candidate's own residual
     lag-1 correlation when the noise is serially correlated (a candidate that only soaks up correlated
     noise gains little once whitened; one that removes a real effect leaves white residuals)."""
@@ -569,7 +569,7 @@ def _pair_verdict(y, base: FitSummary, candidates: Sequence[FitSummary], pairs: 
     mm = m + len(on)
     ok = []
     for p in on:
-        r0, r1 = _rss_pair(y, base, p, noise.correlated)
+        r0, r1 = rss_pair(y, base, p, noise.correlated)
         F, pv = nested_f_test(r0, base.n_free, r1, p.n_free, n)
         d, se = crossval.paired_difference(base.sq_err, p.sq_err, groups)
         pa = min(1.0, pv * mm) if np.isfinite(pv) else float("nan")
@@ -628,7 +628,7 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
     coll = collinear_groups(covariates)
     tests: list[CandidateTest] = []
     for c in candidates:
-        r0, r1 = _rss_pair(y, base, c, noise.correlated)
+        r0, r1 = rss_pair(y, base, c, noise.correlated)
         F, p = nested_f_test(r0, base.n_free, r1, c.n_free, n)
         d, se = crossval.paired_difference(base.sq_err, c.sq_err, groups)
         pa = min(1.0, p * m) if np.isfinite(p) else float("nan")
