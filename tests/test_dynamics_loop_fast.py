@@ -375,14 +375,16 @@ def test_a_runs_friction_probe_scales_that_runs_friction_level_only(tmp_path):
     b = DL.DynBound(base.with_effect(probe), df)
     theta = np.array([0.02, 0.5])  # P_f at 37 C, slope b per 4 C
     sysm = b.system(theta)
+    def pf(temp):
+        return float(0.02 * np.exp(0.5 * (temp - 37.0) / 4.0))
+
     for run, temp in (("a", 33.0), ("b", 41.0), ("c", 37.0)):
-        assert b.run_system(sysm, theta, run).Pf_N == pytest.approx(0.02 * np.exp(0.5 * (temp - 37.0) / 4.0), rel=1e-12)
+        assert b.run_system(sysm, theta, run).Pf_N == pytest.approx(pf(temp), rel=1e-12)
     # the runs' paths are the base model's at each run's friction level
     pred = b.simulate(theta, classify=False)["pred"]
     rows = b.row_frame()
     for run, temp in (("b", 41.0), ("e", 35.0)):
-        alone = _model(tmp_path, f"alone_{run}", params={"Pf_N": float(0.02 * np.exp(0.5 * (temp - 37.0) / 4.0))},
-                       kind="trajectory", protocol=None)
+        alone = _model(tmp_path, f"alone_{run}", params={"Pf_N": pf(temp)}, kind="trajectory", protocol=None)
         ref = DL.DynBound(alone, df[df["run"] == run]).simulate(None, classify=False)["pred"]
         np.testing.assert_allclose(pred[(rows["run"] == run).to_numpy()], ref, atol=1e-9)
     # a column that changes within a run is no run's friction level
@@ -405,8 +407,9 @@ def test_trajectory_friction_set_by_a_run_column_names_that_column(tmp_path):
     assert v["outcome"] == "not_built_in" and v["covariate"] == "temperature_C", v["message"]
     probe = next(p for p in r["covariate_probes"] if p["covariate"] == "temperature_C")
     assert probe["cv_rmse"] <= 1.5 * POS_NOISE and r["noise"]["sd"] <= 1.2 * POS_NOISE
-    # the fitted slope: exp(b (T - 37) / 4 C) against 1 + 0.04 (T - 37): b = 4 ln(1.16) / 4 ~ 0.148 at 41 C
-    assert abs(probe["params"]["friction_temperature_slope"]["value"] - 0.15) < 0.03
+    # the probe's level is exp(b (T - 36.5 C) / 4 C) (the runs' median and half range); the truth's log level rises
+    # by ln(1.16) = 0.148 from 37 to 41 C and by ln(1 / 0.84) = 0.174 from 33 to 37 C (seeds 0-3: b 0.152-0.156)
+    assert 0.13 < probe["params"]["friction_temperature_slope"]["value"] < 0.19
 
 
 def test_unknown_candidate_is_bad_input(tmp_path):
