@@ -328,20 +328,30 @@ def _add_effect(eff: Effect) -> None:
     # a dynamics effect changes the equations of motion, which progression speeds and trajectories share: one
     # registered for either kind is registered for both (as the built-in ones are), so that a user's plugin
     # works in a trajectory model as in a progression one
-    kinds = DYNAMICS_KINDS if eff.kind in DYNAMICS_KINDS else (eff.kind,)
-    for kind in kinds:
+    copies = _kind_copies(eff)
+    for kind, _ in copies:
         old = _EFFECTS.get((kind, eff.name))
         if old is not None and old.origin != eff.origin:
             raise ValueError(f"effect '{eff.name}' ({kind}) is already registered by {old.origin}")
-    for kind in kinds:
-        _EFFECTS[(kind, eff.name)] = eff if kind == eff.kind else Effect(**{**eff.__dict__, "kind": kind})
+    for kind, copy in copies:
+        _EFFECTS[(kind, eff.name)] = copy
+
+
+def _kinds_of(kind: str) -> tuple[str, ...]:
+    """Return the kinds an effect of ``kind`` is registered for: both dynamics kinds for either, else itself."""
+    return DYNAMICS_KINDS if kind in DYNAMICS_KINDS else (kind,)
+
+
+def _kind_copies(eff: Effect) -> list[tuple[str, Effect]]:
+    """Return (kind, ``eff`` as an effect of that kind) for every kind of :func:`_kinds_of`."""
+    return [(k, eff if k == eff.kind else Effect(**{**eff.__dict__, "kind": k})) for k in _kinds_of(eff.kind)]
 
 
 def unregister_effect(kind: str, name: str) -> None:
     """Remove the effect ``name`` of ``kind`` (of both dynamics kinds for a dynamics one, as it was registered),
     e.g. a plugin's that a test loaded (the file stays loaded; see ``_LOADED_PLUGINS``). Unknown names are
     ignored."""
-    for k in DYNAMICS_KINDS if kind in DYNAMICS_KINDS else (kind,):
+    for k in _kinds_of(kind):
         _EFFECTS.pop((k, name), None)
 
 
@@ -370,8 +380,8 @@ _PROBES: dict[tuple[str, str], Effect] = {}
 
 def register_probe(eff: Effect) -> Effect:
     """Register a covariate probe (see ``_PROBES``); a dynamics one for both dynamics kinds, as effects are."""
-    for kind in DYNAMICS_KINDS if eff.kind in DYNAMICS_KINDS else (eff.kind,):
-        _PROBES[(kind, eff.name)] = eff if kind == eff.kind else Effect(**{**eff.__dict__, "kind": kind})
+    for kind, copy in _kind_copies(eff):
+        _PROBES[(kind, eff.name)] = copy
     return eff
 
 
