@@ -594,21 +594,54 @@ def test_probe_verdict_names_the_covariate_only_when_the_probe_beats_every_built
     assert DL.probe_verdict(base, [], [none], verdict, "mm/s") is verdict and none["passes"] is False
 
 
-def test_residual_figure_draws_a_drift_row_apart_from_the_frames(tmp_path, monkeypatch):
+def test_bootstrap_interval_is_the_fit_plus_t_standard_errors_in_box_coordinates(monkeypatch):
+    """bootstrap_intervals with the refits stubbed (no engine): 5 resamples give the fit +- t(0.975, 4) = 2.776
+    SDs of the refits, not their 2.5-97.5 percentiles (too narrow: they held a true coil roll-off in 8 of 12 noise
+    seeds, the t interval in 12 of 12; bootstrap_intervals' docstring); inside the bounds; multiplicative for a
+    parameter whose box is logarithmic (log_from)."""
+    from scipy.stats import t as student_t
+
+    lin = SimpleNamespace(key="rolloff", bounds=(-1.0, 1.0), param=SimpleNamespace(log_from=None))
+    edge = SimpleNamespace(key="g", bounds=(-1.0, 1.0), param=SimpleNamespace(log_from=None))
+    log = SimpleNamespace(key="a_mN", bounds=(0.0, 5000.0), param=SimpleNamespace(log_from=1.0))
+    free = [lin, edge, log]
+    bound = SimpleNamespace(free=free, bounds=(np.array([-1.0, -1.0, 0.0]), np.array([1.0, 1.0, 5000.0])))
+    theta = np.array([0.3, 0.99, 100.0])
+    rolloff = np.array([0.29, 0.30, 0.31, 0.30, 0.305])
+    g = np.array([0.98, 0.99, 1.0, 0.97, 0.99])
+    a = 100.0 * np.exp(np.array([-0.2, 0.1, 0.0, 0.2, -0.1]))  # spread by +-20 %
+    draws = iter(np.column_stack([rolloff, g, a]))
+    monkeypatch.setattr(DL, "calibrate", lambda *args, **kw: SimpleNamespace(theta=next(draws)))
+    ev = SimpleNamespace(groups=np.repeat(np.arange(6), 3), bound=bound, y=np.zeros(18), sigma=1.0, theta=theta,
+                         fit=SimpleNamespace(weights=None))
+    ci, se = DL.bootstrap_intervals(ev, 5, QUICK, 0)
+    q = student_t.ppf(0.975, 4)
+    assert q == pytest.approx(2.776, abs=1e-3)
+    assert se["rolloff"] == pytest.approx(np.std(rolloff, ddof=1), rel=1e-12)
+    assert ci["rolloff"] == pytest.approx([0.3 - q * se["rolloff"], 0.3 + q * se["rolloff"]], rel=1e-9)
+    assert ci["rolloff"][0] < rolloff.min() and ci["rolloff"][1] > rolloff.max()  # wider than the percentiles
+    assert ci["g"][1] == pytest.approx(1.0) and ci["g"][0] == pytest.approx(0.99 - q * np.std(g, ddof=1), rel=1e-9)
+    # logarithmic box: u = log1p(a) / log1p(5000), so the interval is about 100 x exp(+-q x 0.158) for a's
+    # log-SD 0.158, asymmetric in mN and above zero however wide
+    lo, hi = ci["a_mN"]
+    sd_log = np.std(np.log1p(a), ddof=1)
+    assert np.log1p(lo) == pytest.approx(np.log1p(100.0) - q * sd_log, rel=1e-9)
+    assert np.log1p(hi) == pytest.approx(np.log1p(100.0) + q * sd_log, rel=1e-9)
+    assert 0 < lo and 100.0 - lo < hi - 100.0
+    assert DL.bootstrap_intervals(ev, 1, QUICK, 0) == ({}, {})
+
+
+def test_residual_figure_draws_a_drift_row_apart_from_the_frames(tmp_path):
     """A trajectory run compared by its drift over whole periods has one residual (35.8 mm here) that is not a
     frame's: the figure draws it in a panel of its own, so the frames' axis keeps the position residuals only."""
-    import matplotlib.pyplot as plt
-
-    figs = []
-    monkeypatch.setattr(plt, "close", lambda fig: figs.append(fig))
     t = np.arange(0.0, 0.5, 0.01)
     res = pd.DataFrame({"run": ["r1"] * t.size + ["r2"], "time_s": list(t) + [1.0],
                         "residual_capsule_mm": list(0.1 * np.sin(40 * t)) + [35.8],
                         "response_class": ["one_impact"] * t.size + ["irregular"],
                         "compared": ["position"] * t.size + ["average_velocity"]})
-    DL._plot_residuals(res, SimpleNamespace(bound=SimpleNamespace(kind="trajectory"), sigma=0.1),
-                       tmp_path / "r.png", "test")
-    frames_ax, drift_ax = figs[0].axes
+    fig = DL._plot_residuals(res, SimpleNamespace(bound=SimpleNamespace(kind="trajectory"), sigma=0.1),
+                             tmp_path / "r.png", "test")
+    frames_ax, drift_ax = fig.axes  # one run by position: no per-run row
     frame_y = np.concatenate([ln.get_ydata() for ln in frames_ax.get_lines()])
     assert np.max(np.abs(frame_y)) < 0.11
     assert [list(ln.get_ydata()) for ln in drift_ax.get_lines()][0] == [35.8]
@@ -616,23 +649,52 @@ def test_residual_figure_draws_a_drift_row_apart_from_the_frames(tmp_path, monke
     assert (tmp_path / "r.png").stat().st_size > 0
 
 
-def test_progression_residual_figure_has_a_panel_per_drive_covariate_and_the_one_named(tmp_path, monkeypatch):
+def test_trajectory_residual_figure_has_a_row_of_run_drift_rates_by_drive_and_the_covariate_named(tmp_path):
+    """The verdict names a run's drive or a column recorded per run; the figure shows each run's residual drift
+    rate (the slope of its position residual over time) against f, P_d and that column, so the dependence it
+    names is seen: here the model falls behind by 0.5 mm/s per Hz above 30 Hz."""
+    rng = np.random.default_rng(0)
+    t = np.arange(0.0, 0.41, 0.01)
+    runs = pd.DataFrame({"run": list("abcdef"), "f_Hz": [30.0, 34.0, 38.0] * 2, "Pd_N": [0.08] * 3 + [0.1] * 3,
+                         "temperature_C": [33.0, 41.0, 37.0, 39.0, 35.0, 36.0]})
+    parts = []
+    for _, r in runs.iterrows():
+        rate = 0.5 * (r["f_Hz"] - 30.0)  # [mm/s]
+        parts.append(pd.DataFrame({"time_s": t, "residual_capsule_mm": 0.2 + rate * t + rng.normal(0, 0.05, t.size),
+                                   "response_class": "one_impact", "compared": "position"}).assign(**r.to_dict()))
+    res = pd.concat(parts, ignore_index=True)
+    per_run = DL.run_residual_rates(res, "residual_capsule_mm", 0.05)
+    assert list(per_run["run"]) == list("abcdef") and "time_s" not in per_run.columns
+    assert list(per_run["temperature_C"]) == list(runs["temperature_C"])
+    se = 0.05 / np.sqrt(np.sum((t - t.mean()) ** 2))
+    assert np.allclose(per_run["rate_se_mm_s"], se) and se == pytest.approx(0.066, abs=0.001)
+    assert np.all(np.abs(per_run["rate_mm_s"] - 0.5 * (per_run["f_Hz"] - 30.0)) < 4 * se)
+    ev = SimpleNamespace(bound=SimpleNamespace(kind="trajectory"), sigma=0.05)
+    fig = DL._plot_residuals(res, ev, tmp_path / "r.png", "test", covariate="temperature_C")
+    assert [ax.get_xlabel() for ax in fig.axes] == ["time [s]", "f [Hz] of the run", "Pd [N] of the run",
+                                                    "temperature [°C] of the run"]
+    assert all("[mm/s]" in ax.get_ylabel() for ax in fig.axes[1:]) and "[mm]" in fig.axes[0].get_ylabel()
+    f_ax = fig.axes[1]
+    pts = f_ax.containers[0].lines[0]  # the runs' rates (their error bars' data line)
+    assert list(pts.get_xdata()) == list(runs["f_Hz"]) and np.allclose(pts.get_ydata(), per_run["rate_mm_s"])
+    fig = DL._plot_residuals(res, ev, tmp_path / "r2.png", "test", covariate="f_Hz")
+    assert [ax.get_xlabel() for ax in fig.axes][1:] == ["f [Hz] of the run", "Pd [N] of the run"]
+    assert (tmp_path / "r2.png").stat().st_size > 0
+
+
+def test_progression_residual_figure_has_a_panel_per_drive_covariate_and_the_one_named(tmp_path):
     """Residuals against f and P_d, and against the covariate a verdict names when it is another column, so
     that the reader sees the dependence the verdict speaks of."""
-    import matplotlib.pyplot as plt
-
-    figs = []
-    monkeypatch.setattr(plt, "close", lambda fig: figs.append(fig))
     res = pd.DataFrame({"f_Hz": [30.0, 34.0, 38.0, 30.0], "Pd_N": [0.1, 0.1, 0.2, 0.2],
                         "temperature_C": [35.0, 36.0, 37.0, 38.0], "residual_velocity_mm_s": [0.1, -2.0, 3.0, 0.4],
                         "response_class": ["one_impact"] * 4})
     ev = SimpleNamespace(bound=SimpleNamespace(kind="progression"), sigma=0.5)
-    DL._plot_residuals(res, ev, tmp_path / "r.png", "test", covariate="temperature_C")
-    assert [ax.get_xlabel() for ax in figs[0].axes] == ["f [Hz]", "Pd [N]", "temperature [°C]"]
-    assert all("[mm/s]" in ax.get_ylabel() for ax in figs[0].axes)
-    assert list(figs[0].axes[2].get_lines()[0].get_ydata()) == [0.1, -2.0, 3.0, 0.4]
-    DL._plot_residuals(res, ev, tmp_path / "r2.png", "test", covariate="Pd_N")
-    assert [ax.get_xlabel() for ax in figs[1].axes] == ["f [Hz]", "Pd [N]"]
+    fig = DL._plot_residuals(res, ev, tmp_path / "r.png", "test", covariate="temperature_C")
+    assert [ax.get_xlabel() for ax in fig.axes] == ["f [Hz]", "Pd [N]", "temperature [°C]"]
+    assert all("[mm/s]" in ax.get_ylabel() for ax in fig.axes)
+    assert list(fig.axes[2].get_lines()[0].get_ydata()) == [0.1, -2.0, 3.0, 0.4]
+    fig = DL._plot_residuals(res, ev, tmp_path / "r2.png", "test", covariate="Pd_N")
+    assert [ax.get_xlabel() for ax in fig.axes] == ["f [Hz]", "Pd [N]"]
 
 
 def test_a_continuation_sweep_is_simulated_whole_for_a_subset_of_conditions(tmp_path):

@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 
 from ..units import split_unit, unit_label
-from .style import OKABE_ITO, figure, label, save_figure
+from .style import OKABE_ITO, blank_figure, figure, label, save_figure
 
 
 def _nice(col: str) -> str:
@@ -319,3 +319,94 @@ def plot_ledger(hist: pd.DataFrame, path: str | Path, title: str = "") -> Path:
     ax.set_title(title or "error history")
     ax.legend(loc="upper right", fontsize=6)
     return save_figure(fig, path)
+
+
+#: response classes of the dynamics loop, one colour each in every residual figure (before and after read alike)
+DYNAMICS_CLASSES = ("no_impact", "one_impact", "multi_impact", "irregular", "failed")
+
+
+def _class_colour(c: str) -> str:
+    return OKABE_ITO[DYNAMICS_CLASSES.index(c) % len(OKABE_ITO)] if c in DYNAMICS_CLASSES else "0.5"
+
+
+def _by_class(ax, x: pd.Series, r: pd.Series, classes: pd.Series, labels: bool) -> None:
+    for c in DYNAMICS_CLASSES:
+        m = (classes == c).to_numpy()
+        if m.any():
+            ax.plot(x[m], r[m], "o", ms=3, color=_class_colour(c), label=c if labels else None)
+
+
+def _value_ticks(ax, x) -> None:
+    """Ticks at a drive's few values (<= 6: a design's levels), else at most 5 ticks, so labels do not collide."""
+    from matplotlib.ticker import MaxNLocator
+
+    u = np.unique(np.asarray(x, float)[np.isfinite(np.asarray(x, float))])
+    if 1 <= u.size <= 6:
+        ax.set_xticks(u, [f"{v:g}" for v in u])
+    else:
+        ax.xaxis.set_major_locator(MaxNLocator(5))
+
+
+def dynamics_residual_figure(frames: pd.DataFrame, xcols: list[str], rcol: str, unit: str, noise_sd: float,
+                             title: str = "", drift: pd.DataFrame | None = None, per_run: pd.DataFrame | None = None,
+                             run_cols: tuple[str, ...] = ()):
+    """Return the dynamics loop's residual figure (not saved).
+
+    - ``frames``: the rows compared point by point (a progression's conditions, a trajectory's frames), with
+      ``rcol`` [unit] and ``response_class``; one panel per column of ``xcols``, the noise SD as a grey band.
+    - ``drift``: a trajectory's runs compared by their drift over whole periods (columns run, ``rcol``, sd): a
+      narrow panel of their own, so a drift is not read as a position error at one instant.
+    - ``per_run``: a trajectory's runs (columns ``rate_mm_s``, ``rate_se_mm_s``, ``response_class`` and the
+      columns of ``run_cols``): a second row, the slope of each run's position residual over time against each
+      column of ``run_cols`` (the drive and the covariate a verdict names), so that a misfit that grows with
+      the drive frequency is seen as it is named."""
+    rows = 2 if per_run is not None and run_cols else 1
+    ratios = [3] * len(xcols) + ([1] if drift is not None and len(drift) else [])
+    wide = len(ratios) > 1 or rows > 1
+    fig = blank_figure("page" if wide else "column", height_in=2.5 * rows)
+    outer = fig.add_gridspec(rows, 1)
+    top = outer[0].subgridspec(1, len(ratios), width_ratios=ratios)
+    axes = []
+    for j, xcol in enumerate(xcols):
+        ax = fig.add_subplot(top[0, j])
+        ax.axhspan(-noise_sd, noise_sd, color="0.85", lw=0, zorder=0, label="± noise SD")
+        if xcol == "time_s" and "run" in frames.columns:  # each run's frames joined, so a run is followed in time
+            for _, d in frames.groupby("run", sort=False):
+                ax.plot(d[xcol], d[rcol], "-", color="0.6", lw=0.5, zorder=1)
+        _by_class(ax, frames[xcol], frames[rcol], frames["response_class"], j == 0)
+        if xcol != "time_s":
+            _value_ticks(ax, frames[xcol])
+        ax.set_xlabel(_nice(xcol))
+        ax.set_ylabel(label("position residual" if xcol == "time_s" else "residual", unit))
+        axes.append(ax)
+    axes[0].legend(loc="best", fontsize=6)
+    if title:
+        axes[0].set_title(title)
+    if drift is not None and len(drift):
+        axd = fig.add_subplot(top[0, len(xcols)])
+        runs = drift["run"].astype(str).to_list()
+        axd.errorbar(range(len(runs)), drift[rcol].to_numpy(float), yerr=drift["sd"].to_numpy(float), fmt="D",
+                     ms=4, mfc="none", color=OKABE_ITO[1], capsize=2, label="± SD of the drift")
+        axd.axhline(0.0, color="0.6", lw=0.8)
+        axd.set_xticks(range(len(runs)), runs, fontsize=6)
+        axd.set_xlim(-0.6, len(runs) - 0.4)
+        axd.set_xlabel("run (irregular)")
+        axd.set_ylabel(label("drift residual over whole periods", unit))
+        axd.set_title("irregular runs: drift")
+        axd.legend(loc="best", fontsize=6)
+    if rows == 2:
+        bottom = outer[1].subgridspec(1, len(run_cols))
+        for j, xcol in enumerate(run_cols):
+            ax = fig.add_subplot(bottom[0, j])
+            ax.axhline(0.0, color="0.6", lw=0.8)
+            for c in DYNAMICS_CLASSES:
+                m = (per_run["response_class"] == c).to_numpy()
+                if m.any():
+                    ax.errorbar(per_run.loc[m, xcol], per_run.loc[m, "rate_mm_s"], yerr=per_run.loc[m, "rate_se_mm_s"],
+                                fmt="s", ms=4, capsize=2, color=_class_colour(c), label=c)
+            _value_ticks(ax, per_run[xcol])
+            ax.set_xlabel(_nice(xcol) + " of the run")
+            ax.set_ylabel(label("residual drift rate", "mm/s"))
+            if j == 0:
+                ax.set_title("per run: slope of the position residual over time (± 1 SE at the noise SD)")
+    return fig
