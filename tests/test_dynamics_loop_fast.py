@@ -682,6 +682,37 @@ def test_trajectory_residual_figure_has_a_row_of_run_drift_rates_by_drive_and_th
     assert (tmp_path / "r2.png").stat().st_size > 0
 
 
+def test_where_a_trajectory_model_fails_is_said_run_by_run_as_falling_behind_or_running_ahead():
+    """plain_summary of a trajectory (no engine): runs whose position residual drifts are named by the sign of the
+    drift, with their drives and classes; a run that drifts by less than RUN_DRIFT_Z standard errors, and the
+    frames of a fit at the noise, are not."""
+    rng = np.random.default_rng(1)
+    t = np.arange(0.0, 0.41, 0.01)
+    drives = {"a": (30.0, 0.08, 4.0, "no_impact"), "b": (30.0, 0.1, 6.0, "no_impact"),
+              "c": (34.0, 0.08, -8.0, "multi_impact"), "d": (38.0, 0.1, -10.0, "multi_impact"),
+              "e": (34.0, 0.1, 0.1, "one_impact")}  # mm/s; e: 1.5 SE, not a drift
+    rows, resid, cls = [], [], []
+    for run, (f, pd_n, rate, c) in drives.items():
+        for ti in t:
+            rows.append({"run": run, "f_Hz": f, "Pd_N": pd_n, "time_s": ti, "compared": "position"})
+            resid.append(rate * ti + rng.normal(0.0, 0.05))
+            cls.append(c)
+    rf = pd.DataFrame(rows)
+    ev = SimpleNamespace(bound=SimpleNamespace(kind="trajectory", row_frame=lambda: rf.copy()), resid=np.array(resid),
+                         sim={"cls": np.array(cls), "spread": np.zeros(len(rf))})
+    words = DL.plain_summary(ev, 0.05)
+    slow, fast = words.split("; ")
+    assert slow.startswith("the model's capsule falls behind the measured one in 2 of 5 runs")
+    assert "(f 30 Hz, P_d 0.08-0.1 N)" in slow and "the shell is not hit" in slow
+    assert float(slow.split("lower by ")[1].split(" mm/s")[0]) == pytest.approx(5.0, abs=0.3)
+    assert fast.startswith("the model's capsule runs ahead of the measured one in 2 of 5 runs")
+    assert "(f 34-38 Hz, P_d 0.08-0.1 N)" in fast and "more than once per period" in fast
+    assert float(fast.split("higher by ")[1].split(" mm/s")[0]) == pytest.approx(9.0, abs=0.3)
+    # a fit at the noise: no run drifts, the rows are within 2 noise SDs
+    ev.resid = rng.normal(0.0, 0.05, len(rf))
+    assert DL.plain_summary(ev, 0.05) == "the model is within about 2 noise SDs of the data in every response regime"
+
+
 def test_progression_residual_figure_has_a_panel_per_drive_covariate_and_the_one_named(tmp_path):
     """Residuals against f and P_d, and against the covariate a verdict names when it is another column, so
     that the reader sees the dependence the verdict speaks of."""

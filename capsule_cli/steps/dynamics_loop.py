@@ -1947,12 +1947,57 @@ def _span(x: pd.Series) -> str:
     return f"{lo:g}" if lo == hi else f"{lo:g}-{hi:g}"
 
 
+#: a trajectory run's misfit is put in words as a drift (:func:`run_drift_words`) when its residual drift rate is
+#: this many standard errors (white noise at the noise SD) from zero and its frames' RMS standardised residual
+#: is above RUN_MISFIT_Z (the same 2 noise SDs as the rows' words below)
+RUN_DRIFT_Z = 3.0
+RUN_MISFIT_Z = 2.0
+
+
+def run_drift_words(ev: DynEvaluation, sigma: float, z: np.ndarray) -> list[str]:
+    """Return, for a trajectory, where the model's capsule falls behind or runs ahead in plain words: the runs
+    compared by position whose residual drift rate (:func:`run_residual_rates`) is RUN_DRIFT_Z standard errors
+    from zero and whose frames misfit (RMS of ``z``, the standardised residuals, above RUN_MISFIT_Z), grouped by
+    sign, with their drives and response classes. Empty when no run drifts so."""
+    rf = ev.bound.row_frame()
+    pos = (rf["compared"] == "position").to_numpy() if "compared" in rf.columns else np.ones(len(rf), bool)
+    if not pos.any() or sigma <= 0:
+        return []
+    fr = rf[pos].assign(resid=ev.resid[pos], response_class=ev.sim["cls"].astype(str)[pos], z=z[pos])
+    fr["run"] = fr["run"].astype(str)
+    per = run_residual_rates(fr.drop(columns=["z"]), "resid", sigma)
+    if per.empty:
+        return []
+    rms = fr.groupby("run", sort=False)["z"].apply(lambda v: float(np.sqrt(np.nanmean(v ** 2))))
+    per["rms_z"] = per["run"].map(rms)
+    off = (per["rate_mm_s"].abs() > RUN_DRIFT_Z * per["rate_se_mm_s"]) & (per["rms_z"] > RUN_MISFIT_Z)
+    parts = []
+    for sign, word in ((1, "lower"), (-1, "higher")):
+        sub = per[off & (np.sign(per["rate_mm_s"]) == sign)]
+        if sub.empty:
+            continue
+        where = (f" (f {_span(sub['f_Hz'])} Hz, P_d {_span(sub['Pd_N'])} N)"
+                 if {"f_Hz", "Pd_N"} <= set(sub.columns) else "")
+        classes = " or ".join(_CLASS_WORDS.get(c, c) for c in dict.fromkeys(sub["response_class"]))
+        parts.append(f"the model's capsule {'falls behind' if sign > 0 else 'runs ahead of'} the measured one in "
+                     f"{len(sub)} of {len(per)} runs compared by position{where}, where {classes}: its average "
+                     f"velocity is {word} by {sub['rate_mm_s'].abs().mean():.3g} mm/s on average (the slope of the "
+                     "position residual)")
+    return parts
+
+
 def plain_summary(ev: DynEvaluation, sigma: float) -> str:
-    """Return where the model fails by regime and drive condition, in plain words."""
+    """Return where the model fails by regime and drive condition, in plain words: for a trajectory, first the
+    runs where the model's capsule falls behind or runs ahead (:func:`run_drift_words`); else, for every response
+    class where most rows are off by more than 2 noise SDs, which way and where."""
     unit = UNIT[ev.bound.kind]
     rf = ev.bound.row_frame()
     z = ev.resid / np.sqrt(row_variance(sigma, ev.sim)) if sigma > 0 else ev.resid
     cls = ev.sim["cls"].astype(str)
+    if ev.bound.kind == "trajectory":
+        drift = run_drift_words(ev, sigma, z)
+        if drift:
+            return "; ".join(drift)
     parts = []
     for c in RESPONSE_CLASSES:
         m = cls == c
