@@ -321,19 +321,9 @@ def plot_ledger(hist: pd.DataFrame, path: str | Path, title: str = "") -> Path:
     return save_figure(fig, path)
 
 
-#: response classes of the dynamics loop, one colour each in every residual figure (before and after read alike)
-DYNAMICS_CLASSES = ("no_impact", "one_impact", "multi_impact", "irregular", "failed")
-
-
-def _class_colour(c: str) -> str:
-    return OKABE_ITO[DYNAMICS_CLASSES.index(c) % len(OKABE_ITO)] if c in DYNAMICS_CLASSES else "0.5"
-
-
-def _by_class(ax, x: pd.Series, r: pd.Series, classes: pd.Series, labels: bool) -> None:
-    for c in DYNAMICS_CLASSES:
-        m = (classes == c).to_numpy()
-        if m.any():
-            ax.plot(x[m], r[m], "o", ms=3, color=_class_colour(c), label=c if labels else None)
+def _class_colours(classes: tuple[str, ...]) -> dict[str, str]:
+    """Return one colour per response class, by its place in ``classes`` (the same in every figure)."""
+    return {c: OKABE_ITO[i % len(OKABE_ITO)] for i, c in enumerate(classes)}
 
 
 def _value_ticks(ax, x) -> None:
@@ -348,18 +338,21 @@ def _value_ticks(ax, x) -> None:
 
 
 def dynamics_residual_figure(frames: pd.DataFrame, xcols: list[str], rcol: str, unit: str, noise_sd: float,
-                             title: str = "", drift: pd.DataFrame | None = None, per_run: pd.DataFrame | None = None,
-                             run_cols: tuple[str, ...] = ()):
+                             classes: tuple[str, ...], title: str = "", drift: pd.DataFrame | None = None,
+                             per_run: pd.DataFrame | None = None, run_cols: tuple[str, ...] = ()):
     """Return the dynamics loop's residual figure (not saved).
 
     - ``frames``: the rows compared point by point (a progression's conditions, a trajectory's frames), with
       ``rcol`` [unit] and ``response_class``; one panel per column of ``xcols``, the noise SD as a grey band.
+      ``classes``: every response class in a fixed order, one colour each, so that figures before and after an
+      effect is added read alike.
     - ``drift``: a trajectory's runs compared by their drift over whole periods (columns run, ``rcol``, sd): a
       narrow panel of their own, so a drift is not read as a position error at one instant.
     - ``per_run``: a trajectory's runs (columns ``rate_mm_s``, ``rate_se_mm_s``, ``response_class`` and the
       columns of ``run_cols``): a second row, the slope of each run's position residual over time against each
       column of ``run_cols`` (the drive and the covariate a verdict names), so that a misfit that grows with
       the drive frequency is seen as it is named."""
+    colour = _class_colours(classes)
     rows = 2 if per_run is not None and run_cols else 1
     ratios = [3] * len(xcols) + ([1] if drift is not None and len(drift) else [])
     wide = len(ratios) > 1 or rows > 1
@@ -373,7 +366,10 @@ def dynamics_residual_figure(frames: pd.DataFrame, xcols: list[str], rcol: str, 
         if xcol == "time_s" and "run" in frames.columns:  # each run's frames joined, so a run is followed in time
             for _, d in frames.groupby("run", sort=False):
                 ax.plot(d[xcol], d[rcol], "-", color="0.6", lw=0.5, zorder=1)
-        _by_class(ax, frames[xcol], frames[rcol], frames["response_class"], j == 0)
+        for c in classes:
+            m = (frames["response_class"] == c).to_numpy()
+            if m.any():
+                ax.plot(frames[xcol][m], frames[rcol][m], "o", ms=3, color=colour[c], label=c if j == 0 else None)
         if xcol != "time_s":
             _value_ticks(ax, frames[xcol])
         ax.set_xlabel(_nice(xcol))
@@ -399,11 +395,11 @@ def dynamics_residual_figure(frames: pd.DataFrame, xcols: list[str], rcol: str, 
         for j, xcol in enumerate(run_cols):
             ax = fig.add_subplot(bottom[0, j])
             ax.axhline(0.0, color="0.6", lw=0.8)
-            for c in DYNAMICS_CLASSES:
+            for c in classes:
                 m = (per_run["response_class"] == c).to_numpy()
                 if m.any():
                     ax.errorbar(per_run.loc[m, xcol], per_run.loc[m, "rate_mm_s"], yerr=per_run.loc[m, "rate_se_mm_s"],
-                                fmt="s", ms=4, capsize=2, color=_class_colour(c), label=c)
+                                fmt="s", ms=4, capsize=2, color=colour[c], label=c)
             _value_ticks(ax, per_run[xcol])
             ax.set_xlabel(_nice(xcol) + " of the run")
             ax.set_ylabel(label("residual drift rate", "mm/s"))

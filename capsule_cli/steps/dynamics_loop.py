@@ -2786,8 +2786,8 @@ def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str
         if "run" in frames.columns and len(frames):
             per_run = run_residual_rates(frames, col, float(ev.sigma))
             run_cols = tuple(dict.fromkeys(c for c in wanted if c in per_run.columns and per_run[c].nunique() >= 2))
-    fig = dynamics_residual_figure(frames, xcols, col, UNIT[ev.bound.kind], float(ev.sigma), title, drift,
-                                   per_run, run_cols)
+    fig = dynamics_residual_figure(frames, xcols, col, UNIT[ev.bound.kind], float(ev.sigma),
+                                   RESPONSE_CLASSES + ("failed",), title, drift, per_run, run_cols)
     save_figure(fig, path)
     return fig
 
