@@ -708,6 +708,19 @@ def test_where_a_trajectory_model_fails_is_said_run_by_run_as_falling_behind_or_
     assert fast.startswith("the model's capsule runs ahead of the measured one in 2 of 5 runs")
     assert "(f 34-38 Hz, P_d 0.08-0.1 N)" in fast and "more than once per period" in fast
     assert float(fast.split("higher by ")[1].split(" mm/s")[0]) == pytest.approx(9.0, abs=0.3)
+    # a run whose frames are off without a drift (an oscillating misfit: impacts out of phase) is said apart
+    ev.resid[rf["run"].to_numpy() == "e"] = 0.5 * np.sin(2 * np.pi * 34.0 * t)
+    words = DL.plain_summary(ev, 0.05)
+    assert words.split("; ")[:2] == [slow, fast]
+    assert words.split("; ")[2].startswith("the frames of 1 more run (f 34 Hz, P_d 0.1 N) are off by ")
+    assert words.endswith("noise SDs (RMS) without such a drift")
+    # the numbers behind the words, as the reports list them
+    recs = {q["run"]: q for q in DL.run_drift_records(DL.run_drift_table(ev, 0.05))}
+    assert [recs[r]["drifts"] for r in "abcde"] == [True, True, True, True, False]
+    assert abs(recs["e"]["rate_mm_s"]) < 3 * recs["e"]["rate_se_mm_s"]
+    assert recs["d"]["f_Hz"] == 38.0 and recs["d"]["response_class"] == "multi_impact" and recs["d"]["frames"] == 41
+    assert recs["d"]["rms_standardised_residual"] > 10
+    assert recs["e"]["rms_standardised_residual"] == pytest.approx(0.5 / np.sqrt(2) / 0.05, rel=0.05)
     # a fit at the noise: no run drifts, the rows are within 2 noise SDs
     ev.resid = rng.normal(0.0, 0.05, len(rf))
     assert DL.plain_summary(ev, 0.05) == "the model is within about 2 noise SDs of the data in every response regime"

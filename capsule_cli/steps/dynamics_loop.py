@@ -1954,26 +1954,49 @@ RUN_DRIFT_Z = 3.0
 RUN_MISFIT_Z = 2.0
 
 
-def run_drift_words(ev: DynEvaluation, sigma: float, z: np.ndarray) -> list[str]:
-    """Return, for a trajectory, where the model's capsule falls behind or runs ahead in plain words: the runs
-    compared by position whose residual drift rate (:func:`run_residual_rates`) is RUN_DRIFT_Z standard errors
-    from zero and whose frames misfit (RMS of ``z``, the standardised residuals, above RUN_MISFIT_Z), grouped by
-    sign, with their drives and response classes. Empty when no run drifts so."""
+def run_drift_table(ev: DynEvaluation, sigma: float) -> pd.DataFrame:
+    """Return one row per trajectory run compared by position (empty for progressions): :func:`run_residual_rates`
+    (the drift rate of its position residual ``rate_mm_s`` ± ``rate_se_mm_s`` at the noise SD ``sigma`` [mm], its
+    drive, class and frames), the RMS of its frames' standardised residuals ``rms_standardised_residual``, and
+    ``drifts``: the rate is RUN_DRIFT_Z standard errors from zero and the frames misfit (RMS above RUN_MISFIT_Z).
+    The numbers behind :func:`run_drift_words`, written beside them in the reports."""
+    if ev.bound.kind != "trajectory" or sigma <= 0:
+        return pd.DataFrame()
     rf = ev.bound.row_frame()
     pos = (rf["compared"] == "position").to_numpy() if "compared" in rf.columns else np.ones(len(rf), bool)
-    if not pos.any() or sigma <= 0:
-        return []
-    fr = rf[pos].assign(resid=ev.resid[pos], response_class=ev.sim["cls"].astype(str)[pos], z=z[pos])
+    if not pos.any():
+        return pd.DataFrame()
+    z = ev.resid / np.sqrt(row_variance(sigma, ev.sim))
+    fr = rf[pos].assign(resid=ev.resid[pos], response_class=ev.sim["cls"].astype(str)[pos])
     fr["run"] = fr["run"].astype(str)
-    per = run_residual_rates(fr.drop(columns=["z"]), "resid", sigma)
+    per = run_residual_rates(fr, "resid", sigma)
+    if per.empty:
+        return per
+    rms = pd.Series(z[pos], index=fr.index).groupby(fr["run"], sort=False).apply(
+        lambda v: float(np.sqrt(np.nanmean(v.to_numpy() ** 2))))
+    per["rms_standardised_residual"] = per["run"].map(rms)
+    per["drifts"] = ((per["rate_mm_s"].abs() > RUN_DRIFT_Z * per["rate_se_mm_s"])
+                     & (per["rms_standardised_residual"] > RUN_MISFIT_Z))
+    return per
+
+
+def run_drift_records(per: pd.DataFrame) -> list[dict]:
+    """Return :func:`run_drift_table`'s rows as JSON records (run, drive, class, frames, rate ± SE, RMS, drifts)."""
+    keep = [c for c in ("run", "f_Hz", "Pd_N", "response_class", "frames", "rate_mm_s", "rate_se_mm_s",
+                        "rms_standardised_residual", "drifts") if c in per.columns]
+    return [{k: (v.item() if hasattr(v, "item") else v) for k, v in rec.items()}
+            for rec in per[keep].to_dict("records")]
+
+
+def run_drift_words(per: pd.DataFrame) -> list[str]:
+    """Return where a trajectory model's capsule falls behind or runs ahead, in plain words: the runs of
+    :func:`run_drift_table` that drift, grouped by sign, with their drives and response classes, then the runs
+    whose frames misfit without a drift. Empty when no run drifts."""
     if per.empty:
         return []
-    rms = fr.groupby("run", sort=False)["z"].apply(lambda v: float(np.sqrt(np.nanmean(v ** 2))))
-    per["rms_z"] = per["run"].map(rms)
-    off = (per["rate_mm_s"].abs() > RUN_DRIFT_Z * per["rate_se_mm_s"]) & (per["rms_z"] > RUN_MISFIT_Z)
     parts = []
     for sign, word in ((1, "lower"), (-1, "higher")):
-        sub = per[off & (np.sign(per["rate_mm_s"]) == sign)]
+        sub = per[per["drifts"] & (np.sign(per["rate_mm_s"]) == sign)]
         if sub.empty:
             continue
         where = (f" (f {_span(sub['f_Hz'])} Hz, P_d {_span(sub['Pd_N'])} N)"
@@ -1983,21 +2006,29 @@ def run_drift_words(ev: DynEvaluation, sigma: float, z: np.ndarray) -> list[str]
                      f"{len(sub)} of {len(per)} runs compared by position{where}, where {classes}: its average "
                      f"velocity is {word} by {sub['rate_mm_s'].abs().mean():.3g} mm/s on average (the slope of the "
                      "position residual)")
+    still = per[~per["drifts"] & (per["rms_standardised_residual"] > RUN_MISFIT_Z)]
+    if parts and not still.empty:
+        where = (f" (f {_span(still['f_Hz'])} Hz, P_d {_span(still['Pd_N'])} N)"
+                 if {"f_Hz", "Pd_N"} <= set(still.columns) else "")
+        rms = still["rms_standardised_residual"]
+        lo, hi = f"{rms.min():.3g}", f"{rms.max():.3g}"
+        parts.append(f"the frames of {len(still)} more run{'s' if len(still) > 1 else ''}{where} are off by "
+                     f"{lo if lo == hi else f'{lo}-{hi}'} noise SDs (RMS) without such a drift")
     return parts
 
 
 def plain_summary(ev: DynEvaluation, sigma: float) -> str:
     """Return where the model fails by regime and drive condition, in plain words: for a trajectory, first the
-    runs where the model's capsule falls behind or runs ahead (:func:`run_drift_words`); else, for every response
+    runs where the model's capsule falls behind or runs ahead (:func:`run_drift_words`, noise SD ``sigma``); else,
+    for every response
     class where most rows are off by more than 2 noise SDs, which way and where."""
     unit = UNIT[ev.bound.kind]
     rf = ev.bound.row_frame()
     z = ev.resid / np.sqrt(row_variance(sigma, ev.sim)) if sigma > 0 else ev.resid
     cls = ev.sim["cls"].astype(str)
-    if ev.bound.kind == "trajectory":
-        drift = run_drift_words(ev, sigma, z)
-        if drift:
-            return "; ".join(drift)
+    drift = run_drift_words(run_drift_table(ev, sigma))
+    if drift:
+        return "; ".join(drift)
     parts = []
     for c in RESPONSE_CLASSES:
         m = cls == c
@@ -2223,7 +2254,10 @@ def run_compare(model: Model, df: pd.DataFrame, data_path: str, out_dir, ledger=
     met = _metrics(ev, noise, data_path, dh, k_folds, how, budget)
     if ev.cv_expected is not None:
         met["held_out_if_true"] = held_out_record(ev)
-    met["where_it_fails"] = plain_summary(ev, sigma)
+    # in words at the noise the errors are standardised with (the revised estimate, not the first bound)
+    met["where_it_fails"] = plain_summary(ev, ev.sigma)
+    if bound.kind == "trajectory":
+        met["by_run"] = run_drift_records(run_drift_table(ev, ev.sigma))
     res = residual_frame(ev)
     out.mkdir(parents=True, exist_ok=True)
     write_table(res, out / "residuals.parquet", residual_schema(res), _prov(model, seed, df, data_path, dh))
@@ -2600,7 +2634,8 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
         "model_as_is": {"cv_rmse": base.cv_rmse, "cv_rmse_se": base.cv_rmse_se, "rmse": base.rmse,
                         "bic": base.bic, "n_free": base.k, "params": param_table(base),
                         "held_out_if_true": held_out_record(base),
-                        "by_response_class": by_class(base)},
+                        "by_response_class": by_class(base),
+                        "by_run": run_drift_records(run_drift_table(base, sig_v))},
         "cv": {"folds": int(np.unique(folds).size), "groups": how},
         "candidates": [rec(c) for c in cands], "skipped_candidates": skipped,
         "residual_structure": struct,
@@ -2697,6 +2732,15 @@ def diagnosis_markdown(r: dict) -> str:
              "| --- | --- | --- | --- |"]
     for c in r["model_as_is"]["by_response_class"]:
         lines.append(f"| {c['response_class']} | {c['n']} | {c['cv_rmse']:.3g} | {c['mean_residual']:.3g} |")
+    if r["model_as_is"].get("by_run"):
+        lines += ["", "## By run (model as is)", "", "Drift rate: the slope of the run's position residual (measured - "
+                  "model) over time, ± 1 SE at the noise SD; RMS: of the frames' standardised residuals.", "",
+                  "| run | f [Hz] | P_d [N] | class | frames | drift rate [mm/s] | RMS | drifts |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        for q in r["model_as_is"]["by_run"]:
+            lines.append(f"| {q['run']} | {q.get('f_Hz', float('nan')):g} | {q.get('Pd_N', float('nan')):g} | "
+                         f"{q['response_class']} | {q['frames']} | {q['rate_mm_s']:.3g} ± {q['rate_se_mm_s']:.2g} | "
+                         f"{q['rms_standardised_residual']:.3g} | {'yes' if q['drifts'] else 'no'} |")
     lines += ["", f"Where it fails: {r['where_it_fails']}.", "", "## Candidates, best first", "",
               f"| effect | held-out [{u}] | change [{u}] | dBIC | free | rule |", "| --- | --- | --- | --- | --- | --- |"]
     for c in r["candidates"]:
