@@ -1413,7 +1413,7 @@ def bootstrap_intervals(ev: DynEvaluation, n: int, budget: Budget, seed: int) ->
     draws = np.array(draws)
     to_theta, to_u = box_map(ev.bound)
     u0 = to_u(ev.theta)
-    half = float(student_t.ppf(0.975, n - 1)) * np.std(np.array([to_u(d) for d in draws]), axis=0, ddof=1)
+    half = float(student_t.ppf(0.975, n - 1)) * np.std(to_u(draws), axis=0, ddof=1)
     lo, hi = to_theta(np.clip(u0 - half, 0, 1)), to_theta(np.clip(u0 + half, 0, 1))
     se = np.std(draws, axis=0, ddof=1)
     return ({s.key: [float(lo[i]), float(hi[i])] for i, s in enumerate(ev.bound.free)},
@@ -1947,6 +1947,12 @@ def _span(x: pd.Series) -> str:
     return f"{lo:g}" if lo == hi else f"{lo:g}-{hi:g}"
 
 
+def _drive_span(rows: pd.DataFrame) -> str:
+    """Return 'f lo-hi Hz, P_d lo-hi N' of the rows' drives, or '' when the rows do not carry them."""
+    return (f"f {_span(rows['f_Hz'])} Hz, P_d {_span(rows['Pd_N'])} N"
+            if {"f_Hz", "Pd_N"} <= set(rows.columns) else "")
+
+
 #: a trajectory run's misfit is put in words as a drift (:func:`run_drift_words`) when its residual drift rate is
 #: this many standard errors (white noise at the noise SD) from zero and its frames' RMS standardised residual
 #: is above RUN_MISFIT_Z (the same 2 noise SDs as the rows' words below)
@@ -1999,8 +2005,8 @@ def run_drift_words(per: pd.DataFrame) -> list[str]:
         sub = per[per["drifts"] & (np.sign(per["rate_mm_s"]) == sign)]
         if sub.empty:
             continue
-        where = (f" (f {_span(sub['f_Hz'])} Hz, P_d {_span(sub['Pd_N'])} N)"
-                 if {"f_Hz", "Pd_N"} <= set(sub.columns) else "")
+        where = _drive_span(sub)
+        where = f" ({where})" if where else ""
         classes = " or ".join(_CLASS_WORDS.get(c, c) for c in dict.fromkeys(sub["response_class"]))
         parts.append(f"the model's capsule {'falls behind' if sign > 0 else 'runs ahead of'} the measured one in "
                      f"{len(sub)} of {len(per)} runs compared by position{where}, where {classes}: its average "
@@ -2008,8 +2014,8 @@ def run_drift_words(per: pd.DataFrame) -> list[str]:
                      "position residual)")
     still = per[~per["drifts"] & (per["rms_standardised_residual"] > RUN_MISFIT_Z)]
     if parts and not still.empty:
-        where = (f" (f {_span(still['f_Hz'])} Hz, P_d {_span(still['Pd_N'])} N)"
-                 if {"f_Hz", "Pd_N"} <= set(still.columns) else "")
+        where = _drive_span(still)
+        where = f" ({where})" if where else ""
         rms = still["rms_standardised_residual"]
         lo, hi = f"{rms.min():.3g}", f"{rms.max():.3g}"
         parts.append(f"the frames of {len(still)} more run{'s' if len(still) > 1 else ''}{where} are off by "
@@ -2041,8 +2047,7 @@ def plain_summary(ev: DynEvaluation, sigma: float) -> str:
         mean_r = float(np.nanmean(ev.resid[bad]))
         word = "lower" if mean_r > 0 else "higher"
         what = "velocity" if ev.bound.kind == "progression" else "position"
-        where = (f"f {_span(sub['f_Hz'])} Hz, P_d {_span(sub['Pd_N'])} N"
-                 if {"f_Hz", "Pd_N"} <= set(sub.columns) else "")
+        where = _drive_span(sub)
         parts.append(f"the model's {what} is {word} than measured (by {abs(mean_r):.3g} {unit} on average) in "
                      f"{int(bad.sum())} of {int(m.sum())} rows where {_CLASS_WORDS[c]} ({where})")
     if not parts:
