@@ -181,6 +181,13 @@ def test_frame_to_frame_correlated_position_noise_is_not_read_as_a_missing_effec
         c = r["noise"]["correlated"]
         assert c["covariate"] == "time_s" and 0.6 < c["rho"] < 0.95, c
         assert "correlated" in v["message"]
+        # each run's drift rate is weighed with the correlation found (slope_se): its SE was the white-noise one,
+        # 0.062 mm/s on every run here, now 0.158 (measured, session 30); no run drifts
+        sd = r["noise"]["sd"]
+        for q in r["model_as_is"]["by_run"]:
+            t = df.loc[df["run"] == q["run"], "time_s"].to_numpy(float)
+            assert q["rate_se_mm_s"] == pytest.approx(DL.slope_se(t, sd, c["rho"]), rel=1e-9)
+            assert q["rate_se_mm_s"] > 2 * DL.slope_se(t, sd) and not q["drifts"], q
 
 
 def test_tests_along_a_runs_drive_are_serial_when_frames_are_correlated():

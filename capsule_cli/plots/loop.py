@@ -339,7 +339,8 @@ def _value_ticks(ax, x) -> None:
 
 def dynamics_residual_figure(frames: pd.DataFrame, xcols: list[str], rcol: str, unit: str, noise_sd: float,
                              classes: tuple[str, ...], title: str = "", drift: pd.DataFrame | None = None,
-                             per_run: pd.DataFrame | None = None, run_cols: tuple[str, ...] = ()):
+                             per_run: pd.DataFrame | None = None, run_cols: tuple[str, ...] = (),
+                             rho: float = 0.0):
     """Return the dynamics loop's residual figure (not saved).
 
     - ``frames``: the rows compared point by point (a progression's conditions, a trajectory's frames), with
@@ -351,7 +352,8 @@ def dynamics_residual_figure(frames: pd.DataFrame, xcols: list[str], rcol: str, 
     - ``per_run``: a trajectory's runs (columns ``rate_mm_s``, ``rate_se_mm_s``, ``response_class`` and the
       columns of ``run_cols``): a second row, the slope of each run's position residual over time against each
       column of ``run_cols`` (the drive and the covariate a verdict names), so that a misfit that grows with
-      the drive frequency is seen as it is named."""
+      the drive frequency is seen as it is named. ``rho``: the noise's lag-1 correlation from frame to frame
+      that the rates' SEs allow for (0: white), said in the row's title."""
     colour = _class_colours(classes)
     rows = 2 if per_run is not None and run_cols else 1
     ratios = [3] * len(xcols) + ([1] if drift is not None and len(drift) else [])
@@ -404,5 +406,6 @@ def dynamics_residual_figure(frames: pd.DataFrame, xcols: list[str], rcol: str, 
             ax.set_xlabel(_nice(xcol) + " of the run")
             ax.set_ylabel(label("residual drift rate", "mm/s"))
             if j == 0:
-                ax.set_title("per run: slope of the position residual over time (± 1 SE at the noise SD)")
+                ax.set_title("per run: slope of the position residual over time (± 1 SE at the noise SD"
+                             + (f", frame-to-frame correlation {rho:.2g})" if rho else ")"))
     return fig

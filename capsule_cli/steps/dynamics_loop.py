@@ -1572,6 +1572,17 @@ def serial_noise(rf: pd.DataFrame, evs: Sequence[DynEvaluation], z) -> dict | No
     return serial_correlation(rf, np.nan_to_num(z(best)), cols)
 
 
+def noise_rho(corr: dict | None) -> float:
+    """Return the lag-1 correlation of the noise from frame to frame in a serial-correlation record
+    (:func:`serial_noise`), 0 when there is none (white noise)."""
+    return float(corr["rho"]) if corr and corr.get("rho") is not None else 0.0
+
+
+def public_record(corr: dict | None) -> dict | None:
+    """Return a serial-correlation record without its private keys (``_order``, ``_segment``), for JSON."""
+    return {k: v for k, v in corr.items() if not k.startswith("_")} if corr else None
+
+
 def record_serial(struct: list[dict], rf: pd.DataFrame, corr: dict | None) -> list[dict]:
     """Return the structure records with the tests along a covariate that is constant within each record of
     serially correlated readings (a trajectory run's drive: f_Hz, Pd_N) marked ``serial``, as
@@ -1954,16 +1965,18 @@ def _drive_span(rows: pd.DataFrame) -> str:
 
 
 #: a trajectory run's misfit is put in words as a drift (:func:`run_drift_words`) when its residual drift rate is
-#: this many standard errors (white noise at the noise SD) from zero and its frames' RMS standardised residual
+#: this many standard errors (at the noise SD and its frame-to-frame correlation, :func:`slope_se`) from zero and
+#: its frames' RMS standardised residual
 #: is above RUN_MISFIT_Z (the same 2 noise SDs as the rows' words below)
 RUN_DRIFT_Z = 3.0
 RUN_MISFIT_Z = 2.0
 
 
-def run_drift_table(ev: DynEvaluation, sigma: float) -> pd.DataFrame:
+def run_drift_table(ev: DynEvaluation, sigma: float, rho: float = 0.0) -> pd.DataFrame:
     """Return one row per trajectory run compared by position (empty for progressions): :func:`run_residual_rates`
-    (the drift rate of its position residual ``rate_mm_s`` ± ``rate_se_mm_s`` at the noise SD ``sigma`` [mm], its
-    drive, class and frames), the RMS of its frames' standardised residuals ``rms_standardised_residual``, and
+    (the drift rate of its position residual ``rate_mm_s`` ± ``rate_se_mm_s`` at the noise SD ``sigma`` [mm] and
+    the noise's frame-to-frame correlation ``rho``, its drive, class and frames), the RMS of its frames'
+    standardised residuals ``rms_standardised_residual``, and
     ``drifts``: the rate is RUN_DRIFT_Z standard errors from zero and the frames misfit (RMS above RUN_MISFIT_Z).
     The numbers behind :func:`run_drift_words`, written beside them in the reports."""
     if ev.bound.kind != "trajectory" or sigma <= 0:
@@ -1975,7 +1988,7 @@ def run_drift_table(ev: DynEvaluation, sigma: float) -> pd.DataFrame:
     z = ev.resid / np.sqrt(row_variance(sigma, ev.sim))
     fr = rf[pos].assign(resid=ev.resid[pos], response_class=ev.sim["cls"].astype(str)[pos])
     fr["run"] = fr["run"].astype(str)
-    per = run_residual_rates(fr, "resid", sigma)
+    per = run_residual_rates(fr, "resid", sigma, rho)
     if per.empty:
         return per
     rms = pd.Series(z[pos], index=fr.index).groupby(fr["run"], sort=False).apply(
@@ -2023,16 +2036,17 @@ def run_drift_words(per: pd.DataFrame) -> list[str]:
     return parts
 
 
-def plain_summary(ev: DynEvaluation, sigma: float) -> str:
+def plain_summary(ev: DynEvaluation, sigma: float, rho: float = 0.0) -> str:
     """Return where the model fails by regime and drive condition, in plain words: for a trajectory, first the
-    runs where the model's capsule falls behind or runs ahead (:func:`run_drift_words`, noise SD ``sigma``); else,
+    runs where the model's capsule falls behind or runs ahead (:func:`run_drift_words`, noise SD ``sigma``, its
+    frame-to-frame correlation ``rho``); else,
     for every response
     class where most rows are off by more than 2 noise SDs, which way and where."""
     unit = UNIT[ev.bound.kind]
     rf = ev.bound.row_frame()
     z = ev.resid / np.sqrt(row_variance(sigma, ev.sim)) if sigma > 0 else ev.resid
     cls = ev.sim["cls"].astype(str)
-    drift = run_drift_words(run_drift_table(ev, sigma))
+    drift = run_drift_words(run_drift_table(ev, sigma, rho))
     if drift:
         return "; ".join(drift)
     parts = []
@@ -2113,7 +2127,7 @@ def dynamics_verdict(base: DynEvaluation, cands: Sequence[dict], noise: dict, si
         t = tests[c["effect"].name]
         c["passes"], c["reason"] = bool(t.supported), t.reason
         c["f_test_p"], c["f_test_p_adjusted"] = t.p_value, t.p_adjusted
-    where = plain_summary(base, sigma)
+    where = plain_summary(base, sigma, noise_rho(noise.get("correlated")))
     regime = None if v.outcome == "nothing_missing" else regime_of(base, sigma)
     msg = v.message
     if v.outcome != "nothing_missing":
@@ -2259,16 +2273,33 @@ def run_compare(model: Model, df: pd.DataFrame, data_path: str, out_dir, ledger=
     met = _metrics(ev, noise, data_path, dh, k_folds, how, budget)
     if ev.cv_expected is not None:
         met["held_out_if_true"] = held_out_record(ev)
-    # in words at the noise the errors are standardised with (the revised estimate, not the first bound)
-    met["where_it_fails"] = plain_summary(ev, ev.sigma)
+    rho = 0.0
     if bound.kind == "trajectory":
-        met["by_run"] = run_drift_records(run_drift_table(ev, ev.sigma))
+        # a video track's position noise is often correlated from frame to frame: the per-run drift rates' SEs
+        # allow for the lag-1 correlation of this model's residuals along time (serial_noise, as diagnose finds
+        # it over the models it fits; here the one model, so a misfit's own wander widens them too)
+        corr = serial_noise(bound.row_frame(), [ev], lambda e: e.resid / np.sqrt(row_variance(e.sigma, e.sim)))
+        rho = noise_rho(corr)
+        met["residuals_correlated"] = public_record(corr)
+    # in words at the noise the errors are standardised with (the revised estimate, not the first bound)
+    met["where_it_fails"] = plain_summary(ev, ev.sigma, rho)
+    if bound.kind == "trajectory":
+        met["by_run"] = run_drift_records(run_drift_table(ev, ev.sigma, rho))
+        met["by_run_meaning"] = (
+            "per run compared by position: rate_mm_s, the least-squares slope of its position residual (measured "
+            "- model) over time; rate_se_mm_s, its SE at the noise SD" + (
+                f" and the residuals' lag-1 correlation from frame to frame ({rho:.3g}, AR(1); found in this model's "
+                "residuals, so a misfit's own wander along time widens it as correlated noise would)" if rho else
+                " (white noise: no serial correlation found in the residuals)")
+            + f"; it drifts when the rate is {RUN_DRIFT_Z:g} SEs from zero and the frames' RMS standardised "
+              f"residual is above {RUN_MISFIT_Z:g}")
     res = residual_frame(ev)
     out.mkdir(parents=True, exist_ok=True)
     write_table(res, out / "residuals.parquet", residual_schema(res), _prov(model, seed, df, data_path, dh))
     met["figures"] = []
     if figures:
-        _plot_residuals(res, ev, out / "residuals.png", f"{model.name}: residuals by condition and class")
+        _plot_residuals(res, ev, out / "residuals.png", f"{model.name}: residuals by condition and class",
+                        rho=rho)
         met["figures"] = ["residuals.png"]
     write_json_atomic(out / "metrics.json", met)
     if ledger is not None:
@@ -2634,13 +2665,13 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
         "base": model.base.name, "effects": model.effect_names, "data": str(data_path), "data_hash": dh,
         "n": int(base.y.size), "unit": UNIT[model.kind], "protocol": bound.protocol.__dict__,
         "noise": {"sd": noise["sd"], "se": noise["se"], "method": noise["method"], "reliable": reliable,
-                  "correlated": ({k: v for k, v in noise["correlated"].items() if not k.startswith("_")}
-                                 if noise.get("correlated") else None)},
+                  "correlated": public_record(noise.get("correlated"))},
         "model_as_is": {"cv_rmse": base.cv_rmse, "cv_rmse_se": base.cv_rmse_se, "rmse": base.rmse,
                         "bic": base.bic, "n_free": base.k, "params": param_table(base),
                         "held_out_if_true": held_out_record(base),
                         "by_response_class": by_class(base),
-                        "by_run": run_drift_records(run_drift_table(base, sig_v))},
+                        "by_run": run_drift_records(run_drift_table(base, sig_v,
+                                                                    noise_rho(noise.get("correlated"))))},
         "cv": {"folds": int(np.unique(folds).size), "groups": how},
         "candidates": [rec(c) for c in cands], "skipped_candidates": skipped,
         "residual_structure": struct,
@@ -2688,7 +2719,7 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
     result["figures"] = []
     if figures:
         _plot_residuals(res, base, out / "residuals.png", f"{model.name}: residuals by condition and class",
-                        covariate=verdict.get("covariate"))
+                        covariate=verdict.get("covariate"), rho=noise_rho(noise.get("correlated")))
         result["figures"].append("residuals.png")
     if write_model is not None:
         named = next((c for c in cands if c["effect"].name == verdict["missing_effect"]), None)
@@ -2739,7 +2770,10 @@ def diagnosis_markdown(r: dict) -> str:
         lines.append(f"| {c['response_class']} | {c['n']} | {c['cv_rmse']:.3g} | {c['mean_residual']:.3g} |")
     if r["model_as_is"].get("by_run"):
         lines += ["", "## By run (model as is)", "", "Drift rate: the slope of the run's position residual (measured - "
-                  "model) over time, ± 1 SE at the noise SD; RMS: of the frames' standardised residuals.", "",
+                  "model) over time, ± 1 SE at the noise SD" + (
+                      f" and its lag-1 correlation from frame to frame ({r['noise']['correlated']['rho']:.2g})"
+                      if (r["noise"].get("correlated") or {}).get("rho") else "")
+                  + "; RMS: of the frames' standardised residuals.", "",
                   "| run | f [Hz] | P_d [N] | class | frames | drift rate [mm/s] | RMS | drifts |",
                   "| --- | --- | --- | --- | --- | --- | --- | --- |"]
         for q in r["model_as_is"]["by_run"]:
@@ -2776,10 +2810,32 @@ def diagnosis_markdown(r: dict) -> str:
     return "\n".join(lines)
 
 
-def run_residual_rates(frames: pd.DataFrame, rcol: str, sigma: float) -> pd.DataFrame:
+def slope_se(t_s: np.ndarray, sigma: float, rho: float = 0.0) -> float:
+    """Return the standard error of the least-squares slope of readings at times ``t_s`` [s] over time, for
+    noise of SD ``sigma`` whose lag-1 correlation from one reading to the next (in time order) is ``rho``
+    (AR(1): correlation rho^k at k readings apart). Exact for the given times: SD x sqrt(w' R w), w the
+    slope's weights (t - mean t) / Sxx; for rho = 0 it is SD / sqrt(Sxx). Correlated readings carry less
+    information about a slope than independent ones: at rho 0.8, 100 equally spaced frames, the SE is
+    2.8 times the white-noise one (sqrt((1 + rho) / (1 - rho)) = 3 for long records, as for the mean of
+    AR(1) readings; e.g. Box, Jenkins & Reinsel, Time Series Analysis)."""
+    t = np.sort(np.asarray(t_s, float))
+    sxx = float(np.sum((t - t.mean()) ** 2))
+    if t.size < 2 or sxx <= 0:
+        return float("nan")
+    w = (t - t.mean()) / sxx
+    v = float(w @ w)
+    if rho > 0:
+        lags = min(t.size - 1, int(np.ceil(np.log(1e-12) / np.log(min(rho, 0.999)))))
+        for k in range(1, lags + 1):
+            v += 2.0 * rho ** k * float(w[:-k] @ w[k:])
+    return float(sigma * np.sqrt(max(v, 0.0)))
+
+
+def run_residual_rates(frames: pd.DataFrame, rcol: str, sigma: float, rho: float = 0.0) -> pd.DataFrame:
     """Return one row per trajectory run compared by position: the least-squares slope of its position residual
     (measured - model) over the frame times ``rate_mm_s`` [mm/s] (how much faster the capsule went than the
-    model), its standard error for white noise of SD ``sigma`` [mm] (``rate_se_mm_s``), the run's most common
+    model), its standard error (``rate_se_mm_s``, :func:`slope_se`) for noise of SD ``sigma`` [mm] whose lag-1
+    correlation from frame to frame is ``rho`` (0: white), the run's most common
     response class, and every numeric column constant within each run (its drive f_Hz, Pd_N and, for instance,
     a temperature recorded per run). Runs of fewer than 3 frames are left out."""
     recs = []
@@ -2792,7 +2848,7 @@ def run_residual_rates(frames: pd.DataFrame, rcol: str, sigma: float) -> pd.Data
         if t.size < 3 or sxx <= 0:
             continue
         rec = {"run": str(run), "rate_mm_s": float(np.sum((t - t.mean()) * (r - r.mean())) / sxx),
-               "rate_se_mm_s": float(sigma / np.sqrt(sxx)),
+               "rate_se_mm_s": slope_se(t, sigma, rho),
                "response_class": str(d["response_class"].mode().iloc[0]), "frames": int(t.size)}
         for c in d.columns:
             if c not in rec and c != "time_s" and pd.api.types.is_numeric_dtype(d[c]) and d[c].nunique() == 1:
@@ -2802,14 +2858,15 @@ def run_residual_rates(frames: pd.DataFrame, rcol: str, sigma: float) -> pd.Data
 
 
 def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str,
-                    covariate: str | None = None):
+                    covariate: str | None = None, rho: float = 0.0):
     """Draw and save the residuals by response class; return the figure.
 
     - progression: against the drive frequency and amplitude, and against ``covariate`` (the one a verdict
       names) when it is another column;
     - trajectory: the position residuals against the frame time, and a second row with each run's residual
-      drift rate (:func:`run_residual_rates`) against f, P_d and ``covariate`` when the runs hold 2 or more
-      values of it. A run compared by its drift over whole periods (``compared = average_velocity``) has one
+      drift rate (:func:`run_residual_rates`, its SE at the noise's frame-to-frame correlation ``rho``) against
+      f, P_d and ``covariate`` when the runs hold 2 or more values of it. A run compared by its drift over
+      whole periods (``compared = average_velocity``) has one
       residual that is not a frame's: it is drawn in a panel of its own, per run, so that it is not read as a
       position error at one instant."""
     from ..plots.loop import dynamics_residual_figure
@@ -2833,10 +2890,10 @@ def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str
                   else np.full(len(res), float(ev.sigma)))
             drift = res[drift_m].assign(sd=sd[drift_m])
         if "run" in frames.columns and len(frames):
-            per_run = run_residual_rates(frames, col, float(ev.sigma))
+            per_run = run_residual_rates(frames, col, float(ev.sigma), rho)
             run_cols = tuple(dict.fromkeys(c for c in wanted if c in per_run.columns and per_run[c].nunique() >= 2))
     fig = dynamics_residual_figure(frames, xcols, col, UNIT[ev.bound.kind], float(ev.sigma),
-                                   RESPONSE_CLASSES + ("failed",), title, drift, per_run, run_cols)
+                                   RESPONSE_CLASSES + ("failed",), title, drift, per_run, run_cols, rho)
     save_figure(fig, path)
     return fig
 
