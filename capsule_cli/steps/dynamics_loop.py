@@ -1966,8 +1966,7 @@ def _drive_span(rows: pd.DataFrame) -> str:
 
 #: a trajectory run's misfit is put in words as a drift (:func:`run_drift_words`) when its residual drift rate is
 #: this many standard errors (at the noise SD and its frame-to-frame correlation, :func:`slope_se`) from zero and
-#: its frames' RMS standardised residual
-#: is above RUN_MISFIT_Z (the same 2 noise SDs as the rows' words below)
+#: its frames' RMS standardised residual is above RUN_MISFIT_Z (the same 2 noise SDs as the rows' words below)
 RUN_DRIFT_Z = 3.0
 RUN_MISFIT_Z = 2.0
 
@@ -2632,6 +2631,7 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
             for c in cands + probes:
                 c["ev"] = c["ev"].with_sigma(float(noise["sd"]))
     sig_v = float(noise["sd"]) if reliable else sigma
+    rho = noise_rho(noise.get("correlated"))  # the frames' noise correlation the runs' drift rates allow for
     # over a few runs the held-out error of a correct model is what its parameters' error makes it on these runs:
     # measured, not taken from the linear model, for the model as is and then for the effect named
     nz = Noise(sig_v, float(noise.get("se") or 0.0), reliable)
@@ -2670,8 +2670,7 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
                         "bic": base.bic, "n_free": base.k, "params": param_table(base),
                         "held_out_if_true": held_out_record(base),
                         "by_response_class": by_class(base),
-                        "by_run": run_drift_records(run_drift_table(base, sig_v,
-                                                                    noise_rho(noise.get("correlated"))))},
+                        "by_run": run_drift_records(run_drift_table(base, sig_v, rho))},
         "cv": {"folds": int(np.unique(folds).size), "groups": how},
         "candidates": [rec(c) for c in cands], "skipped_candidates": skipped,
         "residual_structure": struct,
@@ -2719,7 +2718,7 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
     result["figures"] = []
     if figures:
         _plot_residuals(res, base, out / "residuals.png", f"{model.name}: residuals by condition and class",
-                        covariate=verdict.get("covariate"), rho=noise_rho(noise.get("correlated")))
+                        covariate=verdict.get("covariate"), rho=rho)
         result["figures"].append("residuals.png")
     if write_model is not None:
         named = next((c for c in cands if c["effect"].name == verdict["missing_effect"]), None)
