@@ -1572,6 +1572,21 @@ def serial_noise(rf: pd.DataFrame, evs: Sequence[DynEvaluation], z) -> dict | No
     return serial_correlation(rf, np.nan_to_num(z(best)), cols)
 
 
+def detrended_by_run(rf: pd.DataFrame, r: np.ndarray) -> np.ndarray:
+    """Return ``r`` less each trajectory run's least-squares line over ``time_s`` (rows compared by position;
+    the others as they are): what is left of a residual about the run's drift rate (:func:`run_residual_rates`)."""
+    out = np.asarray(r, float).copy()
+    pos = (rf["compared"] == "position").to_numpy() if "compared" in rf.columns else np.ones(len(rf), bool)
+    t_all = rf["time_s"].to_numpy(float)
+    for idx in rf.index[pos].groupby(rf.loc[pos, "run"].astype(str)).values():
+        i = rf.index.get_indexer(idx)
+        t, v = t_all[i], out[i]
+        ok = np.isfinite(t) & np.isfinite(v)
+        if ok.sum() >= 3 and np.ptp(t[ok]) > 0:
+            out[i[ok]] = v[ok] - np.polyval(np.polyfit(t[ok], v[ok], 1), t[ok])
+    return out
+
+
 def noise_rho(corr: dict | None) -> float:
     """Return the lag-1 correlation of the noise from frame to frame in a serial-correlation record
     (:func:`serial_noise`), 0 when there is none (white noise)."""
@@ -2275,9 +2290,12 @@ def run_compare(model: Model, df: pd.DataFrame, data_path: str, out_dir, ledger=
     rho = 0.0
     if bound.kind == "trajectory":
         # a video track's position noise is often correlated from frame to frame: the per-run drift rates' SEs
-        # allow for the lag-1 correlation of this model's residuals along time (serial_noise, as diagnose finds
-        # it over the models it fits; here the one model, so a misfit's own wander widens them too)
-        corr = serial_noise(bound.row_frame(), [ev], lambda e: e.resid / np.sqrt(row_variance(e.sigma, e.sim)))
+        # allow for the lag-1 correlation of this model's residuals about each run's drift line (serial_noise,
+        # as diagnose finds it over the models it fits; here the one model, its drift taken out first, so that
+        # the misfit the rate measures is not read as correlated noise that widens its own SE)
+        rf = bound.row_frame()
+        corr = serial_noise(rf, [ev], lambda e: detrended_by_run(
+            rf, e.resid / np.sqrt(row_variance(e.sigma, e.sim))))
         rho = noise_rho(corr)
         met["residuals_correlated"] = public_record(corr)
     # in words at the noise the errors are standardised with (the revised estimate, not the first bound)
@@ -2288,8 +2306,9 @@ def run_compare(model: Model, df: pd.DataFrame, data_path: str, out_dir, ledger=
             "per run compared by position: rate_mm_s, the least-squares slope of its position residual (measured "
             "- model) over time; rate_se_mm_s, its SE at the noise SD" + (
                 f" and the residuals' lag-1 correlation from frame to frame ({rho:.3g}, AR(1); found in this model's "
-                "residuals, so a misfit's own wander along time widens it as correlated noise would)" if rho else
-                " (white noise: no serial correlation found in the residuals)")
+                "residuals about each run's drift line, so a misfit that is not a drift widens it as correlated "
+                "noise would)" if rho else
+                " (white noise: no serial correlation found in the residuals about each run's drift line)")
             + f"; it drifts when the rate is {RUN_DRIFT_Z:g} SEs from zero and the frames' RMS standardised "
               f"residual is above {RUN_MISFIT_Z:g}")
     res = residual_frame(ev)
