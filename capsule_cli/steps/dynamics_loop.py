@@ -1572,18 +1572,31 @@ def serial_noise(rf: pd.DataFrame, evs: Sequence[DynEvaluation], z) -> dict | No
     return serial_correlation(rf, np.nan_to_num(z(best)), cols)
 
 
+def position_rows(rf: pd.DataFrame) -> np.ndarray:
+    """Return the mask of a trajectory row frame's rows compared by position (every row when it has no
+    ``compared`` column)."""
+    return (rf["compared"] == "position").to_numpy() if "compared" in rf.columns else np.ones(len(rf), bool)
+
+
+def _ls_slope(t: np.ndarray, r: np.ndarray) -> float:
+    """Return the least-squares slope of ``r`` over ``t`` (NaN when ``t`` does not vary)."""
+    sxx = float(np.sum((t - t.mean()) ** 2)) if t.size else 0.0
+    return float(np.sum((t - t.mean()) * (r - r.mean())) / sxx) if sxx > 0 else float("nan")
+
+
 def detrended_by_run(rf: pd.DataFrame, r: np.ndarray) -> np.ndarray:
     """Return ``r`` less each trajectory run's least-squares line over ``time_s`` (rows compared by position;
     the others as they are): what is left of a residual about the run's drift rate (:func:`run_residual_rates`)."""
     out = np.asarray(r, float).copy()
-    pos = (rf["compared"] == "position").to_numpy() if "compared" in rf.columns else np.ones(len(rf), bool)
+    pos = position_rows(rf)
     t_all = rf["time_s"].to_numpy(float)
     for idx in rf.index[pos].groupby(rf.loc[pos, "run"].astype(str)).values():
         i = rf.index.get_indexer(idx)
         t, v = t_all[i], out[i]
         ok = np.isfinite(t) & np.isfinite(v)
-        if ok.sum() >= 3 and np.ptp(t[ok]) > 0:
-            out[i[ok]] = v[ok] - np.polyval(np.polyfit(t[ok], v[ok], 1), t[ok])
+        t, v, i = t[ok], v[ok], i[ok]
+        if t.size >= 3 and np.ptp(t) > 0:
+            out[i] = v - v.mean() - _ls_slope(t, v) * (t - t.mean())
     return out
 
 
@@ -1996,7 +2009,7 @@ def run_drift_table(ev: DynEvaluation, sigma: float, rho: float = 0.0) -> pd.Dat
     if ev.bound.kind != "trajectory" or sigma <= 0:
         return pd.DataFrame()
     rf = ev.bound.row_frame()
-    pos = (rf["compared"] == "position").to_numpy() if "compared" in rf.columns else np.ones(len(rf), bool)
+    pos = position_rows(rf)
     if not pos.any():
         return pd.DataFrame()
     z = ev.resid / np.sqrt(row_variance(sigma, ev.sim))
@@ -2862,10 +2875,9 @@ def run_residual_rates(frames: pd.DataFrame, rcol: str, sigma: float, rho: float
         r = d[rcol].to_numpy(float)
         ok = np.isfinite(t) & np.isfinite(r)
         t, r = t[ok], r[ok]
-        sxx = float(np.sum((t - t.mean()) ** 2)) if t.size else 0.0
-        if t.size < 3 or sxx <= 0:
+        if t.size < 3 or np.ptp(t) <= 0:
             continue
-        rec = {"run": str(run), "rate_mm_s": float(np.sum((t - t.mean()) * (r - r.mean())) / sxx),
+        rec = {"run": str(run), "rate_mm_s": _ls_slope(t, r),
                "rate_se_mm_s": slope_se(t, sigma, rho),
                "response_class": str(d["response_class"].mode().iloc[0]), "frames": int(t.size)}
         for c in d.columns:
