@@ -594,6 +594,42 @@ def test_probe_verdict_names_the_covariate_only_when_the_probe_beats_every_built
     assert DL.probe_verdict(base, [], [none], verdict, "mm/s") is verdict and none["passes"] is False
 
 
+def test_probe_verdict_names_collinear_covariates_together_and_cannot_tell_which():
+    """probe_verdict (no engine): when the winning probe's covariate moves with another in the data (|r| >=
+    COLLINEAR_R, as the rule says for every covariate it names), the data cannot tell which one the missing
+    effect depends on: outcome cannot_tell, both in ``confounded``, no covariate, and the message says what to
+    measure. The same probe with a column that does not move with f_Hz names f_Hz, as before."""
+    rng = np.random.default_rng(3)
+    n = 40
+    groups = np.arange(n)
+    f = np.tile(np.linspace(15.0, 42.0, 10), 4)
+    yy = rng.normal(0.0, 1.0, n) + 5.0 * np.sin(np.arange(n))
+    miss = yy - rng.normal(0.0, 1.0, n)
+    base = _fake_ev(yy, np.zeros(n), np.zeros(n), 1, groups)
+    cands = [{"effect": SimpleNamespace(name="tilt_friction"), "ev": _fake_ev(yy, 0.5 * miss, 0.5 * miss, 2, groups)}]
+    verdict = {"outcome": "nothing_missing", "missing_effect": None, "covariate": None, "where": "w",
+               "confounded": []}
+    eff = SimpleNamespace(name="probe_friction_f_Hz", covariates=("f_Hz",), role="friction",
+                          params=(SimpleNamespace(name="friction_f_exponent"),))
+    probe = {"effect": eff, "ev": _fake_ev(yy, miss, miss, 2, groups, {"friction_f_exponent": 0.55})}
+    coil = 30.0 + 0.5 * (f - 15.0)  # a coil that warms as the frequency is stepped up
+    v = DL.probe_verdict(base, cands, [probe], verdict, "mm/s",
+                         covariates={"f_Hz": f, "coil_temperature_C": coil})
+    assert probe["passes"] is True
+    assert v["outcome"] == "cannot_tell" and v["covariate"] is None and v["missing_effect"] is None
+    assert v["confounded"] == ["f_Hz", "coil_temperature_C"] and v["closest"] == "tilt_friction"
+    assert "f_Hz or coil_temperature_C" in v["message"]
+    assert "Measure with coil_temperature_C varied at fixed f_Hz" in v["message"]
+    # nearly collinear counts too (r = 0.97), a column that does not move with f does not
+    wobbly = coil + np.random.default_rng(0).normal(0.0, 1.0, n)
+    assert 0.95 < np.corrcoef(f, wobbly)[0, 1] < 0.99
+    v2 = DL.probe_verdict(base, cands, [probe], verdict, "mm/s", covariates={"f_Hz": f, "coil_temperature_C": wobbly})
+    assert v2["outcome"] == "cannot_tell" and v2["confounded"] == ["f_Hz", "coil_temperature_C"]
+    apart = np.random.default_rng(1).uniform(30.0, 40.0, n)
+    assert abs(np.corrcoef(f, apart)[0, 1]) < 0.5
+    v3 = DL.probe_verdict(base, cands, [probe], verdict, "mm/s", covariates={"f_Hz": f, "coil_temperature_C": apart})
+    assert v3["outcome"] == "not_built_in" and v3["covariate"] == "f_Hz" and v3["confounded"] == []
+
 def test_bootstrap_interval_is_the_fit_plus_t_standard_errors_in_box_coordinates(monkeypatch):
     """bootstrap_intervals with the refits stubbed (no engine): 5 resamples give the fit +- t(0.975, 4) = 2.776
     SDs of the refits, not their 2.5-97.5 percentiles (too narrow: they held a true coil roll-off in 8 of 12 noise
@@ -1050,6 +1086,22 @@ def test_a_friction_level_that_depends_on_the_drive_amplitude_is_named_by_its_co
     assert fric["cv_rmse"] <= 1.2 * NOISE  # held out at the noise level (0.447 mm/s at this seed)
     assert abs(fric["params"]["friction_Pd_exponent"]["value"] - 0.7) < 0.1
 
+
+def test_a_drive_dependence_confounded_with_a_column_is_not_pinned_on_either(tmp_path):
+    """The friction level rises with P_d (as in the test above) and the table brings the coil's temperature,
+    which rose with the drive current (T = 25 C + 100 C/N P_d): the two move together, so the verdict cannot
+    say which one the missing effect depends on. Before, the P_d probe won on the probes' forms and the verdict
+    named Pd_N alone, although the rule printed in the same report says collinear covariates are never named
+    alone. The residual figure gets a panel for the column."""
+    design = PD3_DESIGN.assign(Pf_N=0.02 * (PD3_DESIGN["Pd_N"] / 0.1) ** 0.7)
+    r = _diagnose_friction_given(tmp_path, design, 2, coil_temperature_C=lambda d: 25.0 + 100.0 * d["Pd_N"])
+    v = r["verdict"]
+    assert v["outcome"] == "cannot_tell" and v["covariate"] is None, v["message"]
+    assert sorted(v["confounded"]) == ["Pd_N", "coil_temperature_C"], v["message"]
+    assert r["collinear_covariates"] == [["Pd_N", "coil_temperature_C"]]
+    fric = next(p for p in r["covariate_probes"] if p["probe"] == "probe_friction_Pd_N")
+    assert fric["passes"] and fric["cv_rmse"] <= 1.2 * NOISE  # the probe still fits: the effect is there
+    assert "collinear, not separable by these data" in (tmp_path / "diag" / "diagnosis.md").read_text()
 
 def test_a_table_column_beside_the_drive_is_a_covariate_and_gets_its_own_probe(tmp_path):
     """A friction level that rises with a temperature recorded beside the drive (not built in; a column of the

@@ -74,8 +74,8 @@ from ..tables import (Column, TableSchema, is_synthetic, provenance, write_json_
 from . import crossval
 from .residual_tests import (correct_for_correlation, is_ordered, noise_estimate, numeric_covariates,
                              replicate_groups, serial_correlation, structure_tests)
-from .verdict import (ALPHA_EFFECT, EXCESS_Z, RULE_TEXT, FitSummary, Noise, decide_verdict, nested_f_test,
-                      noise_expectation, rss_pair, winner_excess)
+from .verdict import (ALPHA_EFFECT, COLLINEAR_R, EXCESS_Z, RULE_TEXT, FitSummary, Noise, collinear_groups,
+                      decide_verdict, nested_f_test, noise_expectation, rss_pair, winner_excess)
 
 DYN_KINDS = ("progression", "trajectory")
 #: response classes of dynamics.system.progression (contract section 2, verdict.regime)
@@ -2490,7 +2490,8 @@ def noise_excess(ev: DynEvaluation, noise: Mapping | None) -> tuple[float, float
 
 
 def probe_verdict(base: DynEvaluation, cands: Sequence[dict], probes: Sequence[dict], verdict: dict,
-                  unit: str, alpha: float = ALPHA_EFFECT, noise: Mapping | None = None) -> dict:
+                  unit: str, alpha: float = ALPHA_EFFECT, noise: Mapping | None = None,
+                  covariates: Mapping[str, np.ndarray] | None = None) -> dict:
     """Return the verdict, overridden by a covariate probe when one explains the data better than every
     built-in effect: then an effect that is not built in depends on the probe's covariate.
 
@@ -2512,6 +2513,14 @@ def probe_verdict(base: DynEvaluation, cands: Sequence[dict], probes: Sequence[d
     continuation down, the probe on P_d held out at 0.87 mm/s against the noise 0.74, a substrate compliance
     at 8.0, better by 7.1 ± 4.2: (b) alone named the compliance. The message says that the probe is not a
     physical model.
+
+    ``covariates`` (name -> values per row, as the rule reads them): when the winning probe's covariate is
+    collinear in these data with another (:func:`.verdict.collinear_groups`, |r| >= COLLINEAR_R), the outcome is
+    "the data cannot tell" with both named (``confounded``), as the rule says for every covariate it names: a
+    function of one is then nearly a function of the other, and which probe fits better is a matter of the
+    probes' forms. A friction level linear in a temperature that rose with the frequency (T = 30 C + 0.5 C/Hz
+    (f - 15 Hz), 40 conditions, noise 0.5 mm/s) was named "depends on f_Hz" (the f probe held out at 0.583 mm/s,
+    the temperature's at 0.647).
     """
     if not probes:
         return verdict
@@ -2553,21 +2562,34 @@ def probe_verdict(base: DynEvaluation, cands: Sequence[dict], probes: Sequence[d
         form, shown = f"a drive force scaled as s ({cov} / reference)^b", f"s = {got[0]:.3g}, b = {got[1]:.3g}"
     closest = best_b["effect"].name if best_b else None
     also = list(dict.fromkeys(p["effect"].covariates[0] for p in ok if p["effect"].covariates[0] != cov))
-    msg = (f"an effect that is not built in depends on {cov}: write a plugin. No built-in effect explains the "
-           f"data" + (f" (the closest, {closest}, held-out RMSE {base.cv_rmse:.3g} -> {best_b['ev'].cv_rmse:.3g} "
-                      f"{unit})" if best_b else "")
-           + f"; {form}, a covariate probe and not a physical model, "
-           f"cuts it to {win['ev'].cv_rmse:.3g} {unit} ({shown}, F test p = {win['f_test_p']:.3g} x {m} tried; "
-           f"better than the closest built-in by {win['delta_cv_best_builtin']:.3g} ± "
-           f"{win['delta_cv_best_builtin_se']:.2g} {unit}"
-           + (", and at the noise level where the built-in is not" if win["at_noise_where_builtin_is_not"]
-              and not win["delta_cv_best_builtin"] > PROBE_Z * win["delta_cv_best_builtin_se"] else "") + ")"
-           + (f"; a probe on {', '.join(also)} helps too, less" if also else ""))
+    group = next((g for g in collinear_groups(covariates or {}) if cov in g), [cov])
+    cuts = (f"No built-in effect explains the data" + (f" (the closest, {closest}, held-out RMSE {base.cv_rmse:.3g} "
+                                                       f"-> {best_b['ev'].cv_rmse:.3g} {unit})" if best_b else "")
+            + f"; {form}, a covariate probe and not a physical model, cuts it to {win['ev'].cv_rmse:.3g} {unit} "
+              f"({shown}, F test p = {win['f_test_p']:.3g} x {m} tried")
+    if len(group) > 1:
+        # the probe's covariate moves with another: a function of one is nearly a function of the other
+        others = [c for c in group if c != cov]
+        passed = {p["effect"].covariates[0]: p["ev"].cv_rmse for p in ok}
+        also_txt = "".join(f"; the probe on {c} cuts it to {passed[c]:.3g} {unit}" for c in others if c in passed)
+        msg = (f"the data cannot tell: the missing effect, which is not built in, depends on {' or '.join(group)}, "
+               f"which move together in these data (collinear, |r| >= {COLLINEAR_R:g}): they cannot be separated. "
+               f"{cuts}){also_txt}. Measure with {others[0]} varied at fixed {cov} (or the other way round) to tell "
+               "them apart")
+        out = {"outcome": "cannot_tell", "covariate": None, "confounded": group}
+    else:
+        msg = (f"an effect that is not built in depends on {cov}: write a plugin. {cuts}; "
+               f"better than the closest built-in by {win['delta_cv_best_builtin']:.3g} ± "
+               f"{win['delta_cv_best_builtin_se']:.2g} {unit}"
+               + (", and at the noise level where the built-in is not" if win["at_noise_where_builtin_is_not"]
+                  and not win["delta_cv_best_builtin"] > PROBE_Z * win["delta_cv_best_builtin_se"] else "") + ")"
+               + (f"; a probe on {', '.join(also)} helps too, less" if also else ""))
+        out = {"outcome": "not_built_in", "covariate": cov}
     where = verdict.get("where")
     if where:
         msg += f". Where the model as is fails: {where}"
-    return {**verdict, "outcome": "not_built_in", "missing_effect": None, "covariate": cov, "partial": False,
-            "closest": closest, "message": msg, "probe": win["effect"].name}
+    return {**verdict, **out, "missing_effect": None, "partial": False, "closest": closest, "message": msg,
+            "probe": win["effect"].name}
 
 
 def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_model=None, k_folds: int = 5,
@@ -2675,7 +2697,8 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
         if ev_named is not named["ev"]:
             named["ev"] = ev_named
             verdict = dynamics_verdict(base, cands, noise, sig_v, struct, covs, rf)
-    verdict = probe_verdict(base, cands, probes, verdict, UNIT[model.kind], noise=noise | {"reliable": reliable})
+    verdict = probe_verdict(base, cands, probes, verdict, UNIT[model.kind], noise=noise | {"reliable": reliable},
+                            covariates={c: rf[c].to_numpy(float) for c in covs})
     verdict = blocked_caveat(verdict, rf)
     cands.sort(key=lambda c: c["ev"].cv_rmse)
     dh = data_hash(data_path)
@@ -2706,6 +2729,7 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
         "cv": {"folds": int(np.unique(folds).size), "groups": how},
         "candidates": [rec(c) for c in cands], "skipped_candidates": skipped,
         "residual_structure": struct,
+        "collinear_covariates": collinear_groups({c: rf[c].to_numpy(float) for c in covs}),
         "candidates_tried": [c["effect"].name for c in cands],
         "covariate_probes": [{"probe": p["effect"].name, "covariate": p["effect"].covariates[0],
                               "form": p["effect"].description, "cv_rmse": p["ev"].cv_rmse,
@@ -2750,7 +2774,7 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
     result["figures"] = []
     if figures:
         _plot_residuals(res, base, out / "residuals.png", f"{model.name}: residuals by condition and class",
-                        covariate=verdict.get("covariate"), rho=rho)
+                        covariate=verdict.get("covariate") or verdict.get("confounded"), rho=rho)
         result["figures"].append("residuals.png")
     if write_model is not None:
         named = next((c for c in cands if c["effect"].name == verdict["missing_effect"]), None)
@@ -2787,7 +2811,9 @@ def diagnosis_markdown(r: dict) -> str:
     lines = [f"# Diagnosis: {r['model']} on {Path(r['data']).name}", "",
              f"**Verdict.** {msg[0].upper() + msg[1:]}.", "",
              f"- Outcome: {v['outcome'].replace('_', ' ')}" + (" (partial step)" if v.get("partial") else "") + ".",
-             f"- Regime where the misfit concentrates: {v['regime'] or 'none'}; covariate: {v['covariate'] or 'none'}.",
+             f"- Regime where the misfit concentrates: {v['regime'] or 'none'}; covariate: {v['covariate'] or 'none'}"
+             + (f" (collinear, not separable by these data: {', '.join(v['confounded'])})" if v.get("confounded")
+                else "") + ".",
              f"- Candidates tried: {', '.join(r['candidates_tried']) or 'none'}.",
              f"- Protocol: {r['protocol']}.",
              f"- Noise: {r['noise']['sd']:.3g} {u} ({r['noise']['method']}).",
@@ -2888,11 +2914,11 @@ def run_residual_rates(frames: pd.DataFrame, rcol: str, sigma: float, rho: float
 
 
 def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str,
-                    covariate: str | None = None, rho: float = 0.0):
+                    covariate: str | Sequence[str] | None = None, rho: float = 0.0):
     """Draw and save the residuals by response class; return the figure.
 
     - progression: against the drive frequency and amplitude, and against ``covariate`` (the one a verdict
-      names) when it is another column;
+      names, or the collinear ones it cannot tell apart) when it is another column;
     - trajectory: the position residuals against the frame time, and a second row with each run's residual
       drift rate (:func:`run_residual_rates`, its SE at the noise's frame-to-frame correlation ``rho``) against
       f, P_d and ``covariate`` when the runs hold 2 or more values of it. A run compared by its drift over
@@ -2903,7 +2929,8 @@ def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str
     from ..plots.style import save_figure
 
     col = [c for c in res.columns if c.startswith("residual_")][0]
-    wanted = [c for c in ("f_Hz", "Pd_N", covariate) if c]
+    named = [covariate] if isinstance(covariate, str) else list(covariate or ())
+    wanted = [c for c in ("f_Hz", "Pd_N", *named) if c]
     drift_m = (res["compared"] == "average_velocity").to_numpy() if "compared" in res.columns \
         else np.zeros(len(res), bool)
     frames = res[~drift_m]
