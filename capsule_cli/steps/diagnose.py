@@ -282,7 +282,7 @@ class Diagnosis:
     df: pd.DataFrame  # the rows used (outliers left out)
 
 
-def _outlier_records(df: pd.DataFrame, rows) -> list[dict]:
+def outlier_records(df: pd.DataFrame, rows) -> list[dict]:
     """Return one record per flagged row: its 0-based position in ``df`` and its values."""
     return [{"row": int(i), **{c: (float(df.iloc[i][c]) if pd.api.types.is_numeric_dtype(df[c])
                                    else str(df.iloc[i][c])) for c in df.columns}} for i in rows]
@@ -334,7 +334,7 @@ def diagnose_table(model: Model, df: pd.DataFrame, kind: str, where: str = "", k
                                 k_folds, seed, quiet, edge_check=False)
             r = dg.result
             rows = sorted([int(rest[o["row"]]) for o in r["outliers"]] + drop)
-            r["outliers"] = _outlier_records(df_all, rows)
+            r["outliers"] = outlier_records(df_all, rows)
             for o in r["outliers"]:
                 o["test"] = "end row" if o["row"] in ends else "differences or replicates"
             r["n_rows"] = int(len(df_all))
@@ -387,7 +387,7 @@ def diagnose_table(model: Model, df: pd.DataFrame, kind: str, where: str = "", k
         "noise": {"sd": sigma, "se": noise["se"], "method": noise["method"], "reliable": noise.get("reliable", True),
                   "correlated": ({k: v for k, v in noise["correlated"].items() if not k.startswith("_")}
                                  if noise.get("correlated") else None)},
-        "outliers": _outlier_records(df_all, outliers),
+        "outliers": outlier_records(df_all, outliers),
         "collinear_covariates": collinear_groups({c: df[c].to_numpy(float) for c in covs}),
         "model_as_is": {"cv_rmse": base.cv_rmse, "cv_rmse_se": base.cv_rmse_se, "rmse": base.rmse, "bic": base.bic,
                         "n_free": base.k, "params": param_table(base)},

@@ -310,7 +310,7 @@ def max_outliers(n: int) -> int:
     return int(max(1, min(20, n // 5)))
 
 
-def _esd_select(zs: list[tuple[float, float]], n: int) -> int:
+def esd_select(zs: list[tuple[float, float]], n: int) -> int:
     """Return how many of the sequentially removed rows are outliers: the largest i whose (z_i, dof_i) has
     z_i > :func:`outlier_threshold` (n, dof_i) (generalized ESD, Rosner 1983, Technometrics 25, 165: a later,
     larger deviation unmasks earlier ones)."""
@@ -358,7 +358,7 @@ def _replicate_noise(y: np.ndarray, g: np.ndarray, resid: np.ndarray | None = No
         zs.append((top / sd if sd > 0 else float("inf"), float(dof_left)))
         order.append(i)
     out = np.zeros(n, bool)
-    out[order[:_esd_select(zs, n)]] = True
+    out[order[:esd_select(zs, n)]] = True
     sd, dof, _, _ = pooled(~out)
     return sd, dof, out
 
@@ -441,7 +441,7 @@ def _difference_outliers(x: np.ndarray, y: np.ndarray, segs: list[np.ndarray], n
         cache[k] = spike_statistic(x[segs[k]], y[segs[k]]) if segs[k].size >= 5 else (np.zeros(0), np.zeros(0))
         sd, cnt = scale()
         zs.append((raw / sd if sd > 0 else float("inf"), cnt / PSEUDO_DOF_FACTOR))
-    flagged = removed[:_esd_select(zs, n_rows)]
+    flagged = removed[:esd_select(zs, n_rows)]
     return flagged
 
 
