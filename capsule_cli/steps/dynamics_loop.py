@@ -1801,13 +1801,13 @@ def fit_outlier_rows(ev: DynEvaluation) -> tuple[list[int], dict[int, float], fl
     windows and starting states is below MULTISTABLE_SPREAD_FRACTION x s, and not on a knife edge, can be
     flagged: there the error is the noise's. A chaotic row's error is its spread's, whose SD is estimated from a
     few windows and starts, and heavy-tailed. An irregular response without spread (a long period, the same in
-    every window) can be flagged: nothing hidden in 40 conditions with a reading 6 mm/s off at such a condition
-    (42 Hz, 0.2 N) kept it, and the noise bound stayed at 1.02 mm/s. The row with the largest |e| is removed,
-    its z = |e| / sqrt(sum of the e^2 left / (rows left - k)) recorded, up to :func:`max_outliers` times; the
-    first i removed are outliers, i the last step whose z exceeds :func:`outlier_threshold` (Bonferroni over
-    the table's rows, Student's t with the degrees of freedom left): a later, larger deviation unmasks earlier
-    ones. The fit's leverage is not allowed for (the residual is not externally studentised), which only makes
-    a flag less likely."""
+    every window) can be flagged: with every irregular row exempt, nothing hidden in 40 conditions with a reading
+    6 mm/s off at such a condition (42 Hz, 0.2 N) kept it, and the noise bound stayed at 1.02 mm/s. The row with
+    the largest |e| is removed, its z = |e| / sqrt(sum of the e^2 left / (rows left - k)) recorded, up to
+    :func:`max_outliers` times; the first i removed are outliers, i the last step whose z exceeds
+    :func:`outlier_threshold` (Bonferroni over the table's rows, Student's t with the degrees of freedom left):
+    a later, larger deviation unmasks earlier ones. The fit's leverage is not allowed for (the residual is not
+    externally studentised), which only makes a flag less likely."""
     s = standardised_residual_sd(ev)
     n = ev.y.size
     if not s > 0:
@@ -1856,7 +1856,7 @@ def progression_outliers(evs: Sequence[DynEvaluation]) -> list[dict]:
     gross error inflates that bound and every standardised error: nothing hidden in 40 conditions (noise
     0.5 mm/s) with two readings 6 mm/s off gave "nothing is missing" against a noise of at most 1.29 mm/s,
     the two rows neither flagged nor left out; a speed law hidden with the same two readings was named, the
-    noise bound 1.47 mm/s."""
+    noise bound 1.47 mm/s. Both rows flagged and left out: 0.41 and 0.40 mm/s."""
     fits = [(standardised_residual_sd(e), e) for e in simulated_everywhere(evs) if e.y.size - e.k >= 3]
     if not fits:
         return []
@@ -2695,9 +2695,9 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
     only those tried.
 
     Progressions: rows that no model tried accounts for (:func:`progression_outliers`, after the model as is,
-    the candidates and any covariate probes are fitted) are reported and left out, and the table is diagnosed again without them
-    (once; ``outliers_left_out``: their records, positions in the table given, for that second pass, and
-    ``started``: the first pass's start, time.perf_counter(), so that budget.seconds counts both passes).
+    the candidates and any covariate probes are fitted) are reported and left out, and the table is diagnosed
+    again without them (once; ``outliers_left_out``: their records, positions in the table given, for that second
+    pass, and ``started``: the first pass's start, time.perf_counter(), so that budget.seconds counts both).
     """
     from .compare import data_hash
     from .diagnose import applicable_effects, outlier_records
@@ -2805,8 +2805,9 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
         if ev_named is not named["ev"]:
             named["ev"] = ev_named
             verdict = dynamics_verdict(base, cands, noise, sig_v, struct, covs, rf)
+    cov_values = {c: rf[c].to_numpy(float) for c in covs}
     verdict = probe_verdict(base, cands, probes, verdict, UNIT[model.kind], noise=noise | {"reliable": reliable},
-                            covariates={c: rf[c].to_numpy(float) for c in covs})
+                            covariates=cov_values)
     verdict = blocked_caveat(verdict, rf)
     cands.sort(key=lambda c: c["ev"].cv_rmse)
     dh = data_hash(data_path)
@@ -2839,7 +2840,7 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
         "cv": {"folds": int(np.unique(folds).size), "groups": how},
         "candidates": [rec(c) for c in cands], "skipped_candidates": skipped,
         "residual_structure": struct,
-        "collinear_covariates": collinear_groups({c: rf[c].to_numpy(float) for c in covs}),
+        "collinear_covariates": collinear_groups(cov_values),
         "candidates_tried": [c["effect"].name for c in cands],
         "covariate_probes": [{"probe": p["effect"].name, "covariate": p["effect"].covariates[0],
                               "form": p["effect"].description, "cv_rmse": p["ev"].cv_rmse,
