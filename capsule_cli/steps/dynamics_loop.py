@@ -1751,6 +1751,12 @@ def replicate_noise_without_chaos(noise: dict, best: DynEvaluation) -> dict | No
     return out
 
 
+def residual_fits(evs: Sequence[DynEvaluation]) -> list[tuple[float, DynEvaluation]]:
+    """Return (standardised residual SD, evaluation) of each fit in ``evs`` simulated on every row and left with at
+    least 3 residual degrees of freedom: the fits a progression's noise bound and outlier test are read from."""
+    return [(standardised_residual_sd(e), e) for e in simulated_everywhere(evs) if e.y.size - e.k >= 3]
+
+
 def progression_noise(noise: dict, evs: Sequence[DynEvaluation]) -> dict:
     """Return the noise estimate of a progression table after the fits ``evs``.
 
@@ -1766,7 +1772,7 @@ def progression_noise(noise: dict, evs: Sequence[DynEvaluation]) -> dict:
     """
     if not evs:
         return noise
-    fits = [(standardised_residual_sd(e), e) for e in simulated_everywhere(evs) if e.y.size - e.k >= 3]
+    fits = residual_fits(evs)
     if not fits:
         return noise
     sd, best = min(fits, key=lambda t: t[0])
@@ -1857,7 +1863,7 @@ def progression_outliers(evs: Sequence[DynEvaluation]) -> list[dict]:
     0.5 mm/s) with two readings 6 mm/s off gave "nothing is missing" against a noise of at most 1.29 mm/s,
     the two rows neither flagged nor left out; a speed law hidden with the same two readings was named, the
     noise bound 1.47 mm/s. Both rows flagged and left out: 0.41 and 0.40 mm/s."""
-    fits = [(standardised_residual_sd(e), e) for e in simulated_everywhere(evs) if e.y.size - e.k >= 3]
+    fits = residual_fits(evs)
     if not fits:
         return []
     best = min(fits, key=lambda t: t[0])[1]
