@@ -918,6 +918,14 @@ def test_progression_residual_figure_has_a_panel_per_drive_covariate_and_the_one
     assert list(fig.axes[2].get_lines()[0].get_ydata()) == [0.1, -2.0, 3.0, 0.4]
     fig = DL._plot_residuals(res, ev, tmp_path / "r2.png", "test", covariate="Pd_N")
     assert [ax.get_xlabel() for ax in fig.axes] == ["f [Hz]", "Pd [N]"]
+    # a reading left out as an outlier is drawn at its residual in every panel, not silently dropped
+    gross = {"row": 4, "z": 12.0, "threshold": 3.8, "model": "the model as is", "residual": 6.0, "f_Hz": 34.0,
+             "Pd_N": 0.2, "velocity_mm_s": 60.0}
+    fig = DL._plot_residuals(res, ev, tmp_path / "r3.png", "test", outliers=[gross])
+    for ax, x in zip(fig.axes, (34.0, 0.2)):
+        cross = [ln for ln in ax.get_lines() if ln.get_marker() == "x"]
+        assert len(cross) == 1 and list(cross[0].get_xdata()) == [x] and list(cross[0].get_ydata()) == [6.0]
+    assert "left out (outlier)" in [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
 
 
 def test_a_continuation_sweep_is_simulated_whole_for_a_subset_of_conditions(tmp_path):

@@ -340,7 +340,7 @@ def _value_ticks(ax, x) -> None:
 def dynamics_residual_figure(frames: pd.DataFrame, xcols: list[str], rcol: str, unit: str, noise_sd: float,
                              classes: tuple[str, ...], title: str = "", drift: pd.DataFrame | None = None,
                              per_run: pd.DataFrame | None = None, run_cols: tuple[str, ...] = (),
-                             rho: float = 0.0):
+                             rho: float = 0.0, left_out: pd.DataFrame | None = None):
     """Return the dynamics loop's residual figure (not saved).
 
     - ``frames``: the rows compared point by point (a progression's conditions, a trajectory's frames), with
@@ -353,7 +353,9 @@ def dynamics_residual_figure(frames: pd.DataFrame, xcols: list[str], rcol: str, 
       columns of ``run_cols``): a second row, the slope of each run's position residual over time against each
       column of ``run_cols`` (the drive and the covariate a verdict names), so that a misfit that grows with
       the drive frequency is seen as it is named. ``rho``: the noise's lag-1 correlation from frame to frame
-      that the rates' SEs allow for (0: white), said in the row's title."""
+      that the rates' SEs allow for (0: white), said in the row's title.
+    - ``left_out``: readings flagged as outliers and left out of the fits (the columns of ``xcols`` and ``rcol``,
+      their residual under the model that flagged them), drawn as black crosses in every panel of ``xcols``."""
     colour = _class_colours(classes)
     rows = 2 if per_run is not None and run_cols else 1
     ratios = [3] * len(xcols) + ([1] if drift is not None and len(drift) else [])
@@ -372,6 +374,9 @@ def dynamics_residual_figure(frames: pd.DataFrame, xcols: list[str], rcol: str, 
             m = (frames["response_class"] == c).to_numpy()
             if m.any():
                 ax.plot(frames[xcol][m], frames[rcol][m], "o", ms=3, color=colour[c], label=c if j == 0 else None)
+        if left_out is not None and len(left_out) and xcol in left_out.columns:
+            ax.plot(left_out[xcol], left_out[rcol], "x", ms=5, color="black",
+                    label="left out (outlier)" if j == 0 else None)
         if xcol != "time_s":
             _value_ticks(ax, frames[xcol])
         ax.set_xlabel(_nice(xcol))

@@ -1856,7 +1856,8 @@ def progression_outliers(evs: Sequence[DynEvaluation]) -> list[dict]:
     standardised by the noise SD of the rows not flagged and each model's own spread (:func:`row_variance`). A
     row one candidate explains, the missing effect it describes, is then no outlier; a model far off
     everywhere that passes near the reading by chance does not count. Each record: row (0-based), z (its |e|
-    under the best-fitting model in SDs of the rows not flagged), threshold and that model.
+    under the best-fitting model in SDs of the rows not flagged), threshold, that model and its residual there
+    [response unit].
 
     Without replicates the noise is bounded by the best fit's residual SD (:func:`progression_noise`), and a
     gross error inflates that bound and every standardised error: nothing hidden in 40 conditions (noise
@@ -1884,7 +1885,8 @@ def progression_outliers(evs: Sequence[DynEvaluation]) -> list[dict]:
         keep[i] = True
         if any(chi2(e, keep) + 2 * (e.k + len(rows) - 1) <= shifted for _, e in fits if e is not best):
             continue  # another model tried accounts for it
-        out.append({"row": int(i), "z": z[i], "threshold": thr, "model": _model_label(best)})
+        out.append({"row": int(i), "z": z[i], "threshold": thr, "model": _model_label(best),
+                    "residual": float(best.resid[i])})
     return sorted(out, key=lambda o: o["row"])
 
 
@@ -2891,7 +2893,8 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
     result["figures"] = []
     if figures:
         _plot_residuals(res, base, out / "residuals.png", f"{model.name}: residuals by condition and class",
-                        covariate=verdict.get("covariate") or verdict.get("confounded"), rho=rho)
+                        covariate=verdict.get("covariate") or verdict.get("confounded"), rho=rho,
+                        outliers=outliers_left_out or ())
         result["figures"].append("residuals.png")
     if write_model is not None:
         named = next((c for c in cands if c["effect"].name == verdict["missing_effect"]), None)
@@ -3035,11 +3038,14 @@ def run_residual_rates(frames: pd.DataFrame, rcol: str, sigma: float, rho: float
 
 
 def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str,
-                    covariate: str | Sequence[str] | None = None, rho: float = 0.0):
+                    covariate: str | Sequence[str] | None = None, rho: float = 0.0,
+                    outliers: Sequence[dict] = ()):
     """Draw and save the residuals by response class; return the figure.
 
     - progression: against the drive frequency and amplitude, and against ``covariate`` (the one a verdict
-      names, or the collinear ones it cannot tell apart) when it is another column;
+      names, or the collinear ones it cannot tell apart) when it is another column; the readings left out as
+      ``outliers`` (:func:`progression_outliers` records) as crosses at their residual under the model that
+      flagged them;
     - trajectory: the position residuals against the frame time, and a second row with each run's residual
       drift rate (:func:`run_residual_rates`, its SE at the noise's frame-to-frame correlation ``rho``) against
       f, P_d and ``covariate`` when the runs hold 2 or more values of it. A run compared by its drift over
@@ -3070,8 +3076,9 @@ def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str
         if "run" in frames.columns and len(frames):
             per_run = run_residual_rates(frames, col, float(ev.sigma), rho)
             run_cols = tuple(dict.fromkeys(c for c in wanted if c in per_run.columns and per_run[c].nunique() >= 2))
+    left = pd.DataFrame([{**o, col: o["residual"]} for o in outliers if "residual" in o]) if outliers else None
     fig = dynamics_residual_figure(frames, xcols, col, UNIT[ev.bound.kind], float(ev.sigma),
-                                   RESPONSE_CLASSES + ("failed",), title, drift, per_run, run_cols, rho)
+                                   RESPONSE_CLASSES + ("failed",), title, drift, per_run, run_cols, rho, left)
     save_figure(fig, path)
     return fig
 
