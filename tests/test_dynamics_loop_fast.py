@@ -178,6 +178,80 @@ def test_a_reading_no_model_tried_accounts_for_is_an_outlier():
     assert flags <= 12, flags
 
 
+GRID = {"f_Hz": np.tile(np.arange(15.0, 43.0, 3.0), 4), "Pd_N": np.repeat([0.1, 0.15, 0.2, 0.25], 10)}
+
+
+def test_readings_gathered_at_one_drive_are_an_effect_there_not_independent_outliers():
+    """concentrated_rows (no engine): readings no model tried accounts for that gather at one value of a covariate
+    (three of the four readings at 30 Hz in the 10 x 4 grid) are read as an effect acting there, not as independent
+    gross errors. Measured with diagnose (full effort, friction 1.5 x at 30 Hz at every amplitude, noise 0.5 mm/s,
+    seed 0): before, the three were left out as outliers and the verdict was "nothing is missing"."""
+    from scipy.special import comb
+
+    rng = np.random.default_rng(3)
+    n, sd = 40, 0.5
+    truth = rng.uniform(-20.0, 60.0, n)
+    y = truth + rng.normal(0.0, sd, n)
+    at30 = np.flatnonzero(GRID["f_Hz"] == 30.0)[1:]  # 0.15, 0.2, 0.25 N
+    y[at30] += [15.0, -7.0, -7.0]
+    out = DL.progression_outliers([_outlier_ev(y, truth)], GRID)
+    assert [o["row"] for o in out] == list(at30), out
+    at = out[0]["concentrated"]
+    assert all(o["concentrated"] == at for o in out)
+    assert (at["covariate"], at["value"], at["of"]) == ("f_Hz", 30.0, 4)
+    # three of three at one of ten levels of four: 10 x C(4, 3) / C(40, 3), Bonferroni over the two covariates
+    assert at["p"] == pytest.approx(2 * 10 * 4 / comb(40, 3), rel=1e-9)
+    # the same three errors at rows of three frequencies and three amplitudes: independent outliers
+    spread_out = y.copy()
+    spread_out[at30] -= [15.0, -7.0, -7.0]
+    spread_out[[2, 15, 28]] += [15.0, -7.0, -7.0]
+    out = DL.progression_outliers([_outlier_ev(spread_out, truth)], GRID)
+    assert [o["row"] for o in out] == [2, 15, 28] and not any("concentrated" in o for o in out), out
+    # two of two at one frequency: p = 2 x 10 x C(4, 2) / C(40, 2) = 0.15, no grouping
+    assert DL.concentrated_rows(at30[:2], GRID, np.ones(n, bool)) is None
+    # independent gross errors at random rows read as gathered in at most ALPHA_STRUCTURE = 1 % of tables (the
+    # union bound and Bonferroni make it less: three at one frequency 40 / C(40, 3) = 0.4 %; measured 12, 0 and
+    # 5 of 4000 draws of 3, 4 and 5 rows)
+    for m in (3, 4, 5):
+        hits = sum(DL.concentrated_rows(g.choice(n, m, replace=False), GRID, np.ones(n, bool)) is not None
+                   for g in (np.random.default_rng(s) for s in range(4000)))
+        assert hits <= DL.ALPHA_STRUCTURE * 4000, (m, hits)
+
+
+def test_a_verdict_reads_readings_gathered_at_one_drive_as_an_effect_there():
+    """concentrated_verdict (no engine): "nothing is missing" on the other readings becomes an effect that is not
+    built in acting at that value (the other readings' verdict kept in the message, where to measure again);
+    "cannot tell" when the covariate moves with another; a finding already made, and "the data cannot tell",
+    keep their outcome, with the readings as a caveat."""
+    at = {"covariate": "f_Hz", "value": 30.0, "of": 4, "p": 0.0081}
+    left = [{"row": r, "z": z, "threshold": 3.85, "concentrated": at} for r, z in ((15, 8.7), (25, 5.2), (35, 4.8))]
+    left.append({"row": 3, "z": 9.0, "threshold": 3.85})  # an independent outlier beside them
+    base = SimpleNamespace(y=np.zeros(36))
+    null = {"outcome": "nothing_missing", "missing_effect": None, "covariate": None, "confounded": [],
+            "message": "nothing is missing: held-out RMSE 0.413 mm/s"}
+    covs = {"f_Hz": GRID["f_Hz"], "Pd_N": GRID["Pd_N"]}
+    v = DL.concentrated_verdict(null, left, base, "mm/s", covs)
+    assert (v["outcome"], v["covariate"], v["missing_effect"]) == ("not_built_in", "f_Hz", None), v
+    assert v["message"].startswith("an effect that is not built in acts at f_Hz = 30: 3 of the 4 readings"), v
+    assert "rows 15, 25, 35" in v["message"] and "4.8-8.7 noise SDs" in v["message"]
+    assert "the other 36 readings say: nothing is missing: held-out RMSE 0.413" in v["message"]
+    assert v["measure_where"] == {"covariate": "f_Hz", "from": 30.0, "to": 30.0}
+    # the frequency moved with a temperature column: which of the two is not told
+    covs_t = covs | {"temperature_C": 20.0 + 0.5 * GRID["f_Hz"]}
+    v = DL.concentrated_verdict(null, left, base, "mm/s", covs_t)
+    assert v["outcome"] == "cannot_tell" and v["confounded"] == ["f_Hz", "temperature_C"], v
+    named = {"outcome": "missing_effect", "missing_effect": "viscous_drag", "covariate": None, "confounded": [],
+             "message": "viscous_drag is missing"}
+    v = DL.concentrated_verdict(named, left, base, "mm/s", covs)
+    assert (v["outcome"], v["missing_effect"]) == ("missing_effect", "viscous_drag")
+    assert v["message"].startswith("viscous_drag is missing. Besides, 3 of the 4 readings at f_Hz = 30"), v
+    unsure = {**null, "outcome": "cannot_tell", "message": "the data cannot tell"}
+    v = DL.concentrated_verdict(unsure, left, base, "mm/s", covs)
+    assert v["outcome"] == "cannot_tell" and v["message"].startswith("the data cannot tell. Besides, 3 of"), v
+    # independent outliers only: the verdict as it was
+    assert DL.concentrated_verdict(null, left[3:], base, "mm/s", covs) is null
+
+
 TWENTY_DESIGN = pd.DataFrame({"f_Hz": np.tile(np.linspace(28.0, 40.0, 10), 2), "Pd_N": np.repeat([0.08, 0.12], 10)})
 
 
@@ -926,6 +1000,15 @@ def test_progression_residual_figure_has_a_panel_per_drive_covariate_and_the_one
         cross = [ln for ln in ax.get_lines() if ln.get_marker() == "x"]
         assert len(cross) == 1 and list(cross[0].get_xdata()) == [x] and list(cross[0].get_ydata()) == [6.0]
     assert "left out (outlier)" in [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    # readings gathered at one drive (read as an effect there) are diamonds, labelled with the value
+    at = {"covariate": "f_Hz", "value": 30.0, "of": 4, "p": 0.008}
+    gathered = [{**gross, "row": r, "residual": e, "f_Hz": 30.0, "Pd_N": pd_, "concentrated": at}
+                for r, e, pd_ in ((1, 5.0, 0.15), (2, -4.0, 0.25))]
+    fig = DL._plot_residuals(res, ev, tmp_path / "r4.png", "test", outliers=[gross] + gathered)
+    marks = {ln.get_marker(): list(ln.get_ydata()) for ln in fig.axes[0].get_lines() if ln.get_marker() in "xD"}
+    assert marks == {"x": [6.0], "D": [5.0, -4.0]}, marks
+    texts = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert "left out (outlier)" in texts and "left out (gathered at f = 30 Hz)" in texts, texts
 
 
 def test_a_continuation_sweep_is_simulated_whole_for_a_subset_of_conditions(tmp_path):

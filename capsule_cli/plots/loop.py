@@ -355,7 +355,9 @@ def dynamics_residual_figure(frames: pd.DataFrame, xcols: list[str], rcol: str, 
       the drive frequency is seen as it is named. ``rho``: the noise's lag-1 correlation from frame to frame
       that the rates' SEs allow for (0: white), said in the row's title.
     - ``left_out``: readings flagged as outliers and left out of the fits (the columns of ``xcols`` and ``rcol``,
-      their residual under the model that flagged them), drawn as black crosses in every panel of ``xcols``."""
+      their residual under the model that flagged them), drawn as black crosses in every panel of ``xcols``;
+      those with a ``why`` (readings gathered at one value of a covariate, read as an effect there) as open
+      diamonds labelled with it."""
     colour = _class_colours(classes)
     rows = 2 if per_run is not None and run_cols else 1
     ratios = [3] * len(xcols) + ([1] if drift is not None and len(drift) else [])
@@ -375,8 +377,10 @@ def dynamics_residual_figure(frames: pd.DataFrame, xcols: list[str], rcol: str, 
             if m.any():
                 ax.plot(frames[xcol][m], frames[rcol][m], "o", ms=3, color=colour[c], label=c if j == 0 else None)
         if left_out is not None and len(left_out) and xcol in left_out.columns:
-            ax.plot(left_out[xcol], left_out[rcol], "x", ms=5, color="black",
-                    label="left out (outlier)" if j == 0 else None)
+            why = left_out["why"] if "why" in left_out.columns else pd.Series("", index=left_out.index)
+            for w, d in left_out.groupby(why.fillna(""), sort=False):
+                ax.plot(d[xcol], d[rcol], "x" if not w else "D", ms=5 if not w else 4, color="black",
+                        mfc="none", label=(f"left out ({w or 'outlier'})") if j == 0 else None)
         if xcol != "time_s":
             _value_ticks(ax, frames[xcol])
         ax.set_xlabel(_nice(xcol))

@@ -75,8 +75,8 @@ from . import crossval
 from .residual_tests import (correct_for_correlation, esd_select, is_ordered, max_outliers, noise_estimate,
                              numeric_covariates, outlier_threshold, replicate_groups, serial_correlation,
                              structure_tests)
-from .verdict import (ALPHA_EFFECT, COLLINEAR_R, EXCESS_Z, RULE_TEXT, FitSummary, Noise, collinear_groups,
-                      decide_verdict, nested_f_test, noise_expectation, rss_pair, winner_excess)
+from .verdict import (ALPHA_EFFECT, ALPHA_STRUCTURE, COLLINEAR_R, EXCESS_Z, RULE_TEXT, FitSummary, Noise,
+                      collinear_groups, decide_verdict, nested_f_test, noise_expectation, rss_pair, winner_excess)
 
 DYN_KINDS = ("progression", "trajectory")
 #: response classes of dynamics.system.progression (contract section 2, verdict.regime)
@@ -1797,6 +1797,16 @@ def progression_noise(noise: dict, evs: Sequence[DynEvaluation]) -> dict:
     return out
 
 
+def flaggable(ev: DynEvaluation, s: float) -> np.ndarray:
+    """Return the rows of a progression fit ``ev`` (bool mask) whose error is the noise's, which
+    :func:`fit_outlier_rows` may flag: a predicted spread over windows and starting states below
+    MULTISTABLE_SPREAD_FRACTION x ``s`` (the noise SD, response unit), and not on a knife edge."""
+    can = np.nan_to_num(np.asarray(ev.sim["spread"], float)) < MULTISTABLE_SPREAD_FRACTION * s
+    if "knife_edge" in ev.sim:
+        can &= ~np.asarray(ev.sim["knife_edge"], bool)
+    return can
+
+
 def fit_outlier_rows(ev: DynEvaluation) -> tuple[list[int], dict[int, float], float, float]:
     """Return (rows flagged, {row flagged: |e| in SDs of the rows not flagged}, that SD [response unit], the
     threshold at its degrees of freedom) of a progression fit ``ev`` by generalized ESD (Rosner 1983,
@@ -1819,9 +1829,7 @@ def fit_outlier_rows(ev: DynEvaluation) -> tuple[list[int], dict[int, float], fl
     if not s > 0:
         return [], {}, s, math.inf
     e = np.nan_to_num(ev.resid) / np.sqrt(row_variance(s, ev.sim) / s ** 2)
-    can = np.nan_to_num(np.asarray(ev.sim["spread"], float)) < MULTISTABLE_SPREAD_FRACTION * s
-    if "knife_edge" in ev.sim:
-        can &= ~np.asarray(ev.sim["knife_edge"], bool)
+    can = flaggable(ev, s)
     keep = np.ones(n, bool)
     order, zs = [], []
     for _ in range(max_outliers(n)):
@@ -1844,7 +1852,47 @@ def fit_outlier_rows(ev: DynEvaluation) -> tuple[list[int], dict[int, float], fl
     return out, {i: abs(float(e[i])) / sd if sd > 0 else math.inf for i in out}, sd, outlier_threshold(n, dof=dof)
 
 
-def progression_outliers(evs: Sequence[DynEvaluation]) -> list[dict]:
+def concentrated_rows(rows: Sequence[int], covariates: Mapping[str, np.ndarray], pool: np.ndarray,
+                      alpha: float = ALPHA_STRUCTURE) -> dict | None:
+    """Return {covariate, value, rows, of, p} when the flagged ``rows`` gather at one value of a covariate more
+    than independent gross errors would, else None.
+
+    Independent gross errors (a misread, a slipped specimen) fall at rows drawn at random from those that can be
+    flagged (``pool``, a bool mask; :func:`flaggable`): at a level of a covariate holding n_L of those N rows,
+    the number of the m flagged ones is hypergeometric. For each covariate (name -> value per row) k is the
+    largest number flagged at one value, and p = sum over the levels of P(count >= k) (the union bound over
+    the levels), times the number of covariates (Bonferroni); the covariate of least p is returned when
+    p < ``alpha``. An effect that acts at one drive (friction 1.5 x at 30 Hz at every amplitude, which no
+    probe's power law describes) gives readings at that value that no model tried accounts for: in the
+    40-condition grid three were flagged, at 30 Hz and 0.15, 0.2, 0.25 N (4.8-8.7 noise SDs off), and the
+    verdict was "nothing is missing" without them (now "an effect that is not built in acts at f_Hz = 30",
+    p = 0.008). Three of m = 3 at one of ten frequencies of four readings each: p = 2 covariates x 10 x 4 /
+    C(40, 3) = 0.008; two of two: 2 x 10 x 6 / C(40, 2) = 0.15, so two readings never gather in that grid.
+    ``of``: the rows of the table at that value, flagged or not."""
+    from scipy.stats import hypergeom
+
+    rows = [int(r) for r in rows]
+    m, big = len(rows), int(np.sum(pool))
+    found = None
+    if m < 2 or not covariates:
+        return None
+    for c, x in covariates.items():
+        x = np.asarray(x, float)
+        vals, cnt = np.unique(x[rows], return_counts=True)
+        k = int(cnt.max())
+        if k < 2:
+            continue
+        _, sizes = np.unique(x[pool], return_counts=True)
+        p = min(1.0, float(np.sum(hypergeom.sf(k - 1, big, sizes, m))) * len(covariates))
+        if p < alpha and (found is None or p < found["p"]):
+            v = float(vals[np.argmax(cnt)])
+            found = {"covariate": c, "value": v, "rows": [r for r in rows if x[r] == v], "of": int(np.sum(x == v)),
+                     "p": p}
+    return found
+
+
+def progression_outliers(evs: Sequence[DynEvaluation], covariates: Mapping[str, np.ndarray] | None = None
+                         ) -> list[dict]:
     """Return the rows of a progression table that no model tried accounts for, as the quasi-static loop flags
     a row that a mean shift accounts for better than every model tried.
 
@@ -1887,6 +1935,11 @@ def progression_outliers(evs: Sequence[DynEvaluation]) -> list[dict]:
             continue  # another model tried accounts for it
         out.append({"row": int(i), "z": z[i], "threshold": thr, "model": _model_label(best),
                     "residual": float(best.resid[i])})
+    at = concentrated_rows([o["row"] for o in out], covariates or {}, flaggable(best, standardised_residual_sd(best)))
+    if at is not None:
+        for o in out:
+            if o["row"] in at["rows"]:
+                o["concentrated"] = {k: v for k, v in at.items() if k != "rows"}
     return sorted(out, key=lambda o: o["row"])
 
 
@@ -2772,7 +2825,8 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
     if bound.kind == "progression" and outliers_left_out is None:
         # after the probes: a reading that only a dependence no built-in describes explains is no outlier
         # (a friction level set by a temperature column: the row farthest from the built-ins is the effect's)
-        flagged = progression_outliers([base] + [c["ev"] for c in cands + probes])
+        flagged = progression_outliers([base] + [c["ev"] for c in cands + probes],
+                                       {c: rf[c].to_numpy(float) for c in covs})
         if flagged:
             drop = [f["row"] for f in flagged]
             recs = [{**f, **rec} for f, rec in zip(flagged, outlier_records(df, drop))]
@@ -2817,6 +2871,7 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
     verdict = probe_verdict(base, cands, probes, verdict, UNIT[model.kind], noise=noise | {"reliable": reliable},
                             covariates=cov_values)
     verdict = blocked_caveat(verdict, rf)
+    verdict = concentrated_verdict(verdict, outliers_left_out or (), base, UNIT[model.kind], cov_values)
     cands.sort(key=lambda c: c["ev"].cv_rmse)
     dh = data_hash(data_path)
 
@@ -2924,6 +2979,59 @@ def _write_model(model: Model, chosen, path: Path, data_path, verdict, named: bo
     return path
 
 
+def concentrated_verdict(verdict: dict, left_out: Sequence[dict], base: DynEvaluation, unit: str,
+                         covariates: Mapping[str, np.ndarray]) -> dict:
+    """Return the verdict with the readings left out because they gather at one value of a covariate
+    (:func:`concentrated_rows`; ``left_out``: the :func:`progression_outliers` records of the first pass) read as
+    an effect that is not built in acting there, not as independent gross errors.
+
+    They stay out of the fits (the noise and the held-out errors are those of the other readings, where the model
+    may well be right), and the outcome "nothing is missing" becomes "an effect that is not built in" on that
+    covariate ("cannot tell" with the covariates named together when it is collinear with another,
+    :func:`.verdict.collinear_groups`), with the other readings' verdict kept in the message. Any other outcome
+    (a finding, or "the data cannot tell", which a built-in effect fitted short of the noise also gives) is kept,
+    with the readings as a caveat. The message says that the readings may also have gone wrong together (one
+    session, one specimen) and where to measure again."""
+    grp = [o for o in left_out if o.get("concentrated")]
+    if not grp:
+        return verdict
+    at = grp[0]["concentrated"]
+    cov, val = at["covariate"], at["value"]
+    zs = [o["z"] for o in grp]
+    words = (f"{len(grp)} of the {at['of']} readings at {cov} = {val:g} (rows "
+             f"{', '.join(str(o['row']) for o in grp)}) are off every model tried by "
+             f"{min(zs):.3g}-{max(zs):.3g} noise SDs, more gathered there than independent gross errors would be "
+             f"(p = {at['p']:.2g})")
+    again = f"measure again at {cov} = {val:g} and between it and its neighbours"
+    if verdict["outcome"] != "nothing_missing":
+        return {**verdict, "message": f"{verdict['message']}. Besides, {words}: an effect that is not built in may "
+                                      f"act there, or those readings went wrong together; {again}"}
+    group = next((g for g in collinear_groups(covariates) if cov in g), [cov])
+    rest = (f"left out of the fits, the other {base.y.size} readings say: {verdict['message']}. Or those readings "
+            f"went wrong together (one session, one specimen): {again}")
+    if len(group) > 1:
+        msg = (f"the data cannot tell: {words}, and {cov} moves with {', '.join(c for c in group if c != cov)} in "
+               f"these data (collinear, |r| >= {COLLINEAR_R:g}): an effect that is not built in acts where they take "
+               f"these values; {rest}")
+        out = {"outcome": "cannot_tell", "covariate": None, "confounded": group}
+    else:
+        msg = f"an effect that is not built in acts at {cov} = {val:g}: {words}; {rest}"
+        out = {"outcome": "not_built_in", "covariate": cov}
+    return {**verdict, **out, "missing_effect": None, "partial": False, "message": msg,
+            "measure_where": {"covariate": cov, "from": val, "to": val}}
+
+
+def _gathered_words(outliers: Sequence[dict]) -> str:
+    """Return ' (rows 15, 25, 35 gather at f_Hz = 30, p = 0.008: ...)' for the readings left out that gather at
+    one value of a covariate (:func:`concentrated_rows`), or ''."""
+    rows = [o for o in outliers if o.get("concentrated")]
+    if not rows:
+        return ""
+    at = rows[0]["concentrated"]
+    return (f" (rows {', '.join(str(o['row']) for o in rows)} gather at {at['covariate']} = {at['value']:g}, "
+            f"p = {at['p']:.2g}: read as an effect there, not as independent errors)")
+
+
 def diagnosis_markdown(r: dict) -> str:
     """Return diagnosis.md for dynamics data: verdict, regimes, candidates, rule."""
     u, v = r["unit"], r["verdict"]
@@ -2940,7 +3048,8 @@ def diagnosis_markdown(r: dict) -> str:
              *(["- Outliers, left out of every fit (0-based data rows; how far from the best-fitting model tried, "
                 "in noise SDs of the other rows): " + ", ".join(f"row {o['row']} ({o['z']:.3g}, threshold "
                                                                  f"{o['threshold']:.3g})" for o in r["outliers"])
-                + ". No other model tried accounts for these readings: check them."] if r.get("outliers") else []),
+                + ". No other model tried accounts for these readings: check them" + _gathered_words(r["outliers"])
+                + "."] if r.get("outliers") else []),
              f"- Model as is: held-out {r['model_as_is']['cv_rmse']:.3g} ± {r['model_as_is']['cv_rmse_se']:.2g} {u} "
              f"(standardised by the error model), {r['cv']['folds']} folds {r['cv']['groups']}"
              + (lambda h: f"; as the truth on these runs it is held out at {h['mean']:.3g} ± {h['sd']:.2g} {u} "
@@ -3037,6 +3146,14 @@ def run_residual_rates(frames: pd.DataFrame, rcol: str, sigma: float, rho: float
     return pd.DataFrame(recs)
 
 
+def _nice_value(at: Mapping) -> str:
+    """Return 'f = 30 Hz' for {covariate: 'f_Hz', value: 30.0}: a column's value in words for a legend."""
+    from ..units import split_unit, unit_label
+
+    name, unit = split_unit(at["covariate"])
+    return f"{name} = {at['value']:g}" + (f" {unit_label(at['covariate'])}" if unit else "")
+
+
 def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str,
                     covariate: str | Sequence[str] | None = None, rho: float = 0.0,
                     outliers: Sequence[dict] = ()):
@@ -3045,7 +3162,7 @@ def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str
     - progression: against the drive frequency and amplitude, and against ``covariate`` (the one a verdict
       names, or the collinear ones it cannot tell apart) when it is another column; the readings left out as
       ``outliers`` (:func:`progression_outliers` records) as crosses at their residual under the model that
-      flagged them;
+      flagged them (those gathered at one value of a covariate, :func:`concentrated_rows`, as diamonds);
     - trajectory: the position residuals against the frame time, and a second row with each run's residual
       drift rate (:func:`run_residual_rates`, its SE at the noise's frame-to-frame correlation ``rho``) against
       f, P_d and ``covariate`` when the runs hold 2 or more values of it. A run compared by its drift over
@@ -3076,7 +3193,9 @@ def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str
         if "run" in frames.columns and len(frames):
             per_run = run_residual_rates(frames, col, float(ev.sigma), rho)
             run_cols = tuple(dict.fromkeys(c for c in wanted if c in per_run.columns and per_run[c].nunique() >= 2))
-    left = pd.DataFrame([{**o, col: o["residual"]} for o in outliers if "residual" in o]) if outliers else None
+    left = pd.DataFrame([{**o, col: o["residual"], "why": (f"gathered at {_nice_value(o['concentrated'])}"
+                                                         if o.get("concentrated") else "")}
+                         for o in outliers if "residual" in o]) if outliers else None
     fig = dynamics_residual_figure(frames, xcols, col, UNIT[ev.bound.kind], float(ev.sigma),
                                    RESPONSE_CLASSES + ("failed",), title, drift, per_run, run_cols, rho, left)
     save_figure(fig, path)
