@@ -316,7 +316,10 @@ def test_a_gross_reading_is_left_out_and_the_noise_is_not_inflated(tmp_path):
     assert r["outliers"][0]["z"] > r["outliers"][0]["threshold"]
     assert r["noise"]["sd"] < 1.3 * NOISE, r["noise"]
     assert r["verdict"]["outcome"] == "nothing_missing", r["verdict"]["message"]
-    assert "row 13" in (tmp_path / "diag" / "diagnosis.md").read_text()
+    md = (tmp_path / "diag" / "diagnosis.md").read_text()
+    assert "row 13" in md
+    # the rule printed with the diagnosis says how readings are left out and when they are an effect instead
+    assert DL.PROGRESSION_RULE.strip() in md and "hypergeometric" in md and "Mann-Whitney" in md
 
 def _replicated_ev(y, pred, periodic, spread=8.0):
     """A progression evaluation as progression_noise reads it: six conditions x 2 replicates (rows 2i, 2i + 1),

@@ -72,9 +72,9 @@ from ..fitting import information_criteria
 from ..tables import (Column, TableSchema, is_synthetic, provenance, write_json_atomic, write_measurements,
                       write_table, write_text_atomic)
 from . import crossval
-from .residual_tests import (correct_for_correlation, esd_select, is_ordered, max_outliers, noise_estimate,
-                             numeric_covariates, outlier_threshold, replicate_groups, serial_correlation,
-                             structure_tests)
+from .residual_tests import (OUTLIER_ALPHA, correct_for_correlation, esd_select, is_ordered, max_outliers,
+                             noise_estimate, numeric_covariates, outlier_threshold, replicate_groups,
+                             serial_correlation, structure_tests)
 from .verdict import (ALPHA_EFFECT, ALPHA_STRUCTURE, COLLINEAR_R, EXCESS_Z, RULE_TEXT, FitSummary, Noise,
                       collinear_groups, decide_verdict, nested_f_test, noise_expectation, rss_pair, winner_excess)
 
@@ -1897,6 +1897,20 @@ def concentrated_rows(rows: Sequence[int], covariates: Mapping[str, np.ndarray],
 ALPHA_SCATTER = ALPHA_STRUCTURE / 2
 
 
+#: the rule's sentences on progression readings that no model tried accounts for, printed in diagnosis.md
+PROGRESSION_RULE = (
+    " Progressions: a reading that no model tried accounts for (generalized ESD on the best fit's standardised "
+    f"residuals, Bonferroni over the rows at {OUTLIER_ALPHA:.0%}, where the fit predicts a spread below "
+    f"{MULTISTABLE_SPREAD_FRACTION:g} noise SD; kept when another model tried with shifts at the other flagged "
+    "readings has an AIC no higher) is left out as an outlier and the table diagnosed again; flagged readings that "
+    "gather at one value of a covariate more than independent errors would (hypergeometric over the rows that "
+    f"could be flagged, Bonferroni over the covariates, p < {ALPHA_STRUCTURE:g}) are an effect that is not built "
+    "in acting there, and turn \"nothing is missing\" on the other readings into that finding. Without replicates "
+    "the noise is bounded by the best fit's residual SD, so \"nothing is missing\" also needs that fit's residuals "
+    "to be no larger at one value of a covariate than at the others (one-sided Mann-Whitney on their sizes, "
+    f"Bonferroni over the values, p < {ALPHA_SCATTER:g}); otherwise an effect that is not built in acts there.")
+
+
 def scattered_level(ev: DynEvaluation, covariates: Mapping[str, np.ndarray], alpha: float = ALPHA_SCATTER
                     ) -> dict | None:
     """Return {covariate, value, n, rms, rms_other, p, tests} when the misfit of a progression fit ``ev`` gathers
@@ -3019,7 +3033,8 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
                                "the table brings; for trajectories a run's) are fitted; one that passes the F test "
                                "(Bonferroni over candidates and probes) and beats every built-in by more than "
                                f"{PROBE_Z:g} standard errors of held-out RMSE, or is held out at the noise where the "
-                               "best built-in is not, names its covariate (an effect that is not built in)."),
+                               "best built-in is not, names its covariate (an effect that is not built in)."
+                             + (PROGRESSION_RULE if bound.kind == "progression" else "")),
         "budget": {**budget.__dict__, "seconds": time.perf_counter() - t0,
                    "base_seconds": base.seconds, "base_evaluations": bound.n_sim},
     }
