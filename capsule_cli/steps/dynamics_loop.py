@@ -76,7 +76,8 @@ from .residual_tests import (OUTLIER_ALPHA, correct_for_correlation, esd_select,
                              noise_estimate, numeric_covariates, outlier_threshold, replicate_groups,
                              serial_correlation, structure_tests)
 from .verdict import (ALPHA_EFFECT, ALPHA_STRUCTURE, COLLINEAR_R, EXCESS_Z, RULE_TEXT, FitSummary, Noise,
-                      collinear_groups, decide_verdict, nested_f_test, noise_expectation, rss_pair, winner_excess)
+                      collinear_groups, collinear_with, decide_verdict, nested_f_test, noise_expectation, rss_pair,
+                      winner_excess)
 
 DYN_KINDS = ("progression", "trajectory")
 #: response classes of dynamics.system.progression (contract section 2, verdict.regime)
@@ -1979,7 +1980,7 @@ def scattered_verdict(verdict: dict, noise: Mapping, evs: Sequence[DynEvaluation
              f"noise bound ({float(noise['sd']):.3g} {unit}, that model's residual SD without replicates) holds "
              f"that misfit: the model as is is within it, not within the noise. Measure again at {cov} = {val:g} "
              "and beside it; replicates would bound the noise")
-    group = next((g for g in collinear_groups(covariates) if cov in g), [cov])
+    group = collinear_with(cov, covariates)
     if len(group) > 1:
         msg = (f"the data cannot tell: {words}; {cov} moves with {', '.join(c for c in group if c != cov)} in these "
                f"data (collinear, |r| >= {COLLINEAR_R:g})")
@@ -2815,7 +2816,7 @@ def probe_verdict(base: DynEvaluation, cands: Sequence[dict], probes: Sequence[d
         form, shown = f"a drive force scaled as s ({cov} / reference)^b", f"s = {got[0]:.3g}, b = {got[1]:.3g}"
     closest = best_b["effect"].name if best_b else None
     also = list(dict.fromkeys(p["effect"].covariates[0] for p in ok if p["effect"].covariates[0] != cov))
-    group = next((g for g in collinear_groups(covariates or {}) if cov in g), [cov])
+    group = collinear_with(cov, covariates or {})
     cuts = (f"No built-in effect explains the data" + (f" (the closest, {closest}, held-out RMSE {base.cv_rmse:.3g} "
                                                        f"-> {best_b['ev'].cv_rmse:.3g} {unit})" if best_b else "")
             + f"; {form}, a covariate probe and not a physical model, cuts it to {win['ev'].cv_rmse:.3g} {unit} "
@@ -3110,7 +3111,7 @@ def concentrated_verdict(verdict: dict, left_out: Sequence[dict], base: DynEvalu
     if verdict["outcome"] != "nothing_missing":
         return {**verdict, "message": f"{verdict['message']}. Besides, {words}: an effect that is not built in may "
                                       f"act there, or those readings went wrong together; {again}"}
-    group = next((g for g in collinear_groups(covariates) if cov in g), [cov])
+    group = collinear_with(cov, covariates)
     rest = (f"left out of the fits, the other {base.y.size} readings say: {verdict['message']}. Or those readings "
             f"went wrong together (one session, one specimen): {again}")
     if len(group) > 1:

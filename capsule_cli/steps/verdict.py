@@ -358,6 +358,12 @@ def collinear_groups(covariates: Mapping[str, np.ndarray], threshold: float = CO
     return [g for g in groups.values() if len(g) > 1]
 
 
+def collinear_with(name: str, covariates: Mapping[str, np.ndarray], threshold: float = COLLINEAR_R) -> list[str]:
+    """Return the group of covariates collinear with ``name`` in these data (:func:`collinear_groups`), or
+    [name] alone: the covariates a finding on ``name`` must name together."""
+    return next((g for g in collinear_groups(covariates, threshold) if name in g), [name])
+
+
 def _partners(cov: str, groups: list[list[str]]) -> list[str]:
     for g in groups:
         if cov in g:
