@@ -295,6 +295,56 @@ def test_a_misfit_gathered_at_one_amplitude_is_not_read_as_noise():
         assert hits <= most, (hits, most)
 
 
+def test_the_readings_where_a_misfit_gathers_are_left_out_and_the_others_speak_for_themselves():
+    """scattered_rows and left_out_level_verdict (no engine): once the misfit of the best fit is found gathered at
+    one value of a covariate against a noise bounded by that fit's residual SD, every reading at that value is
+    left out and the others are diagnosed again, so that the noise and the errors beside the verdict are theirs.
+    Before, the verdict named Pd_N = 0.2 but the report kept the bound the misfit held (2.49 mm/s against a
+    generating 0.5; diagnose, full effort, friction 1.3 x at 0.2 N, 10 x 4 grid, seed 0) and measured every
+    held-out error and the figure's band against it."""
+    rng = np.random.default_rng(3)
+    n, sd = 40, 0.5
+    truth = rng.uniform(-20.0, 60.0, n)
+    y = truth + rng.normal(0.0, sd, n)
+    at02 = np.flatnonzero(GRID["Pd_N"] == 0.2)
+    y[at02] += [-0.64, 0.2, -3.16, -3.54, -6.66, -4.37, 8.8, 8.16, 7.6, 7.12]  # the engine's shifts there
+    ev = _outlier_ev(y, truth)
+    null = {"outcome": "nothing_missing", "missing_effect": None, "covariate": None, "confounded": [],
+            "message": "nothing is missing: held-out RMSE 0.47 mm/s"}
+    at = DL.scattered_verdict(null, {"sd": 2.49, "residual_of": "the model as is"}, [ev], GRID, "mm/s")["scattered"]
+    assert (at["model"], at["noise_bound"], at["collinear"]) == ("the model as is", 2.49, ["Pd_N"]), at
+    rows = DL.scattered_rows(at, [ev], GRID, k_folds=5)
+    assert [o["row"] for o in rows] == list(at02) and all(o["scattered"] == at for o in rows), rows
+    assert [o["residual"] for o in rows] == pytest.approx(y[at02] - truth[at02])
+    # z: |residual| in the fit's residual SDs (no error model beyond the noise here)
+    assert rows[4]["z"] == pytest.approx(abs(y[at02[4]] - truth[at02[4]]) / DL.standardised_residual_sd(ev))
+    # the others too few to diagnose: less than half the table, or than 3 rows per fold
+    assert DL.scattered_rows({**at, "value": 0.2}, [ev], {"Pd_N": np.where(GRID["Pd_N"] < 0.15, 0.1, 0.2)}, 5) == []
+    assert DL.scattered_rows(at, [ev], GRID, k_folds=11) == []
+    # the other 30 readings at the noise: an effect that is not built in acts at 0.2 N, their noise beside the bound
+    left = [{**o, "row": int(o["row"])} for o in rows]
+    base = SimpleNamespace(y=np.zeros(30))
+    rest = {c: x[GRID["Pd_N"] != 0.2] for c, x in GRID.items()}
+    v = DL.left_out_level_verdict(null, left, base, {"sd": 0.47}, "mm/s", rest)
+    assert (v["outcome"], v["covariate"], v["missing_effect"]) == ("not_built_in", "Pd_N", None), v
+    assert v["message"].startswith("an effect that is not built in acts at Pd_N = 0.2: the best-fitting model tried "
+                                   "(the model as is) missed the 10 readings at Pd_N = 0.2 (rows 20, 21,"), v
+    assert "held the noise bound at 2.49 mm/s" in v["message"], v
+    assert "the other 30 readings (noise 0.47 mm/s) say: nothing is missing: held-out RMSE 0.47" in v["message"]
+    assert v["scattered"] == at and v["measure_where"] == {"covariate": "Pd_N", "from": 0.2, "to": 0.2}
+    # collinear on the whole table, as the level was read (the rest's columns alone may not show it)
+    both = {**at, "collinear": ["Pd_N", "temperature_C"]}
+    v = DL.left_out_level_verdict(null, [{**o, "scattered": both} for o in left], base, {"sd": 0.47}, "mm/s", rest)
+    assert v["outcome"] == "cannot_tell" and v["confounded"] == ["Pd_N", "temperature_C"], v
+    # a finding on the others is kept, the level a caveat; no level left out: the verdict as it was
+    named = {**null, "outcome": "missing_effect", "missing_effect": "viscous_drag", "message": "viscous_drag is missing"}
+    v = DL.left_out_level_verdict(named, left, base, {"sd": 0.47}, "mm/s", rest)
+    assert (v["outcome"], v["missing_effect"]) == ("missing_effect", "viscous_drag"), v
+    assert v["message"].startswith("viscous_drag is missing. Besides, the best-fitting model tried"), v
+    assert DL.left_out_level_verdict(null, [{"row": 3, "z": 9.0, "threshold": 3.85}], base, {"sd": 0.47}, "mm/s",
+                                     rest) is null
+
+
 TWENTY_DESIGN = pd.DataFrame({"f_Hz": np.tile(np.linspace(28.0, 40.0, 10), 2), "Pd_N": np.repeat([0.08, 0.12], 10)})
 
 
@@ -1055,6 +1105,15 @@ def test_progression_residual_figure_has_a_panel_per_drive_covariate_and_the_one
     assert marks == {"x": [6.0], "D": [5.0, -4.0]}, marks
     texts = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
     assert "left out (outlier)" in texts and "left out (gathered at f = 30 Hz)" in texts, texts
+    # the readings at the value where a misfit gathered (scattered_rows): diamonds of their own
+    level = [{**gross, "row": r, "residual": e, "f_Hz": f, "Pd_N": 0.3,
+              "scattered": {"covariate": "Pd_N", "value": 0.3}} for r, e, f in ((5, 3.5, 30.0), (6, -2.5, 38.0))]
+    fig = DL._plot_residuals(res, ev, tmp_path / "r5.png", "test", outliers=[gross] + level)
+    marks = {ln.get_marker(): list(ln.get_ydata()) for ln in fig.axes[0].get_lines() if ln.get_marker() in "xD"}
+    assert marks == {"x": [6.0], "D": [3.5, -2.5]}, marks
+    assert "left out (misfit gathered at Pd = 0.3 N)" in [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    # every reading at 0.3 N left out: the value keeps its tick
+    assert [t.get_text() for t in fig.axes[1].get_xticklabels()] == ["0.1", "0.2", "0.3"]
 
 
 def test_a_continuation_sweep_is_simulated_whole_for_a_subset_of_conditions(tmp_path):

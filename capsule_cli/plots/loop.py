@@ -356,8 +356,8 @@ def dynamics_residual_figure(frames: pd.DataFrame, xcols: list[str], rcol: str, 
       that the rates' SEs allow for (0: white), said in the row's title.
     - ``left_out``: readings flagged as outliers and left out of the fits (the columns of ``xcols`` and ``rcol``,
       their residual under the model that flagged them), drawn as black crosses in every panel of ``xcols``;
-      those with a ``why`` (readings gathered at one value of a covariate, read as an effect there) as open
-      diamonds labelled with it."""
+      those with a ``why`` (readings gathered at one value of a covariate, or the readings at the value where the
+      misfit gathered, read as an effect there) as open diamonds labelled with it."""
     colour = _class_colours(classes)
     rows = 2 if per_run is not None and run_cols else 1
     ratios = [3] * len(xcols) + ([1] if drift is not None and len(drift) else [])
@@ -382,7 +382,8 @@ def dynamics_residual_figure(frames: pd.DataFrame, xcols: list[str], rcol: str, 
                 ax.plot(d[xcol], d[rcol], "x" if not w else "D", ms=5 if not w else 4, color="black",
                         mfc="none", label=(f"left out ({w or 'outlier'})") if j == 0 else None)
         if xcol != "time_s":
-            _value_ticks(ax, frames[xcol])
+            shown = [frames[xcol]] + ([left_out[xcol]] if left_out is not None and xcol in left_out.columns else [])
+            _value_ticks(ax, pd.concat(shown))  # a value whose readings were all left out keeps its tick
         ax.set_xlabel(_nice(xcol))
         ax.set_ylabel(label("position residual" if xcol == "time_s" else "residual", unit))
         axes.append(ax)

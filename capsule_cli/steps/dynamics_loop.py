@@ -1909,7 +1909,9 @@ PROGRESSION_RULE = (
     "in acting there, and turn \"nothing is missing\" on the other readings into that finding. Without replicates "
     "the noise is bounded by the best fit's residual SD, so \"nothing is missing\" also needs that fit's residuals "
     "to be no larger at one value of a covariate than at the others (one-sided Mann-Whitney on their sizes, "
-    f"Bonferroni over the values, p < {ALPHA_SCATTER:g}); otherwise an effect that is not built in acts there.")
+    f"Bonferroni over the values, p < {ALPHA_SCATTER:g}); otherwise an effect that is not built in acts there, and "
+    "the readings there are left out and the others diagnosed again (when they are at least half the table), so "
+    "that the noise and the errors reported are theirs.")
 
 
 def scattered_level(ev: DynEvaluation, covariates: Mapping[str, np.ndarray], alpha: float = ALPHA_SCATTER
@@ -1974,13 +1976,14 @@ def scattered_verdict(verdict: dict, noise: Mapping, evs: Sequence[DynEvaluation
     if at is None:
         return verdict
     cov, val = at["covariate"], at["value"]
+    group = collinear_with(cov, covariates)
+    at = {**at, "model": _model_label(best), "noise_bound": float(noise["sd"]), "collinear": list(group)}
     words = (f"the best-fitting model tried ({_model_label(best)}) misses the {at['n']} readings at {cov} = "
              f"{val:g} by an RMS of {at['rms']:.3g} {unit} against {at['rms_other']:.3g} {unit} at the others "
              f"(Mann-Whitney test of their size p = {at['p']:.2g}, Bonferroni over {at['tests']} values), and the "
              f"noise bound ({float(noise['sd']):.3g} {unit}, that model's residual SD without replicates) holds "
              f"that misfit: the model as is is within it, not within the noise. Measure again at {cov} = {val:g} "
              "and beside it; replicates would bound the noise")
-    group = collinear_with(cov, covariates)
     if len(group) > 1:
         msg = (f"the data cannot tell: {words}; {cov} moves with {', '.join(c for c in group if c != cov)} in these "
                f"data (collinear, |r| >= {COLLINEAR_R:g})")
@@ -1990,6 +1993,35 @@ def scattered_verdict(verdict: dict, noise: Mapping, evs: Sequence[DynEvaluation
         out = {"outcome": "not_built_in", "covariate": cov}
     return {**verdict, **out, "missing_effect": None, "partial": False, "message": msg, "scattered": at,
             "measure_where": {"covariate": cov, "from": val, "to": val}}
+
+
+def scattered_rows(at: Mapping, evs: Sequence[DynEvaluation], covariates: Mapping[str, np.ndarray],
+                   k_folds: int) -> list[dict]:
+    """Return the readings to leave out, and diagnose the table again without, when a misfit gathers at one value
+    of a covariate against a noise bounded by a fit's own residual SD (``at``: the verdict's ``scattered``
+    record, :func:`scattered_verdict`; ``evs``: the fits it was read from), or [] when the others would be too
+    few to diagnose: fewer than half the table's rows or than 3 x ``k_folds``.
+
+    Every reading at that value is left out (chaotic ones too: the effect acts at the value, not at a reading),
+    so that the noise bound, the standardised and held-out errors and the figure's band are those of the other
+    readings, where the model may well be right. Kept in the fits, the ten readings of friction 1.3 x at 0.2 N
+    (40-condition grid, noise 0.5 mm/s) held the noise bound at 2.49 mm/s, and the report's held-out errors were
+    measured against it. Each record: row (0-based position in the table given), z (|residual| under the
+    best-fitting model tried, standardised by its error model, in its residual SDs), that model, its residual
+    there [response unit], and ``scattered``: ``at``."""
+    fits = residual_fits(evs)
+    if not fits or at.get("covariate") not in covariates:
+        return []
+    best = min(fits, key=lambda t: t[0])[1]
+    x = np.asarray(covariates[at["covariate"]], float)
+    rows = np.flatnonzero(x == at["value"])
+    others = x.size - rows.size
+    if not rows.size or others < max(x.size / 2, 3 * k_folds):
+        return []
+    s = standardised_residual_sd(best)
+    e = np.nan_to_num(best.resid) / np.sqrt(row_variance(s, best.sim) / s ** 2)
+    return [{"row": int(i), "z": abs(float(e[i])) / s, "model": _model_label(best),
+             "residual": float(best.resid[i]), "scattered": dict(at)} for i in rows]
 
 
 def progression_outliers(evs: Sequence[DynEvaluation], covariates: Mapping[str, np.ndarray] | None = None
@@ -2858,8 +2890,11 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
 
     Progressions: rows that no model tried accounts for (:func:`progression_outliers`, after the model as is,
     the candidates and any covariate probes are fitted) are reported and left out, and the table is diagnosed
-    again without them (once; ``outliers_left_out``: their records, positions in the table given, for that second
-    pass, and ``started``: the first pass's start, time.perf_counter(), so that budget.seconds counts both).
+    again without them (once; ``outliers_left_out``: the records of the rows left out so far, positions in the
+    table given, for the later passes, and ``started``: the first pass's start, time.perf_counter(), so that
+    budget.seconds counts every pass). Without replicates, when the misfit of the best fit gathers at one value of
+    a covariate (:func:`scattered_verdict`), the readings there are left out too (:func:`scattered_rows`, once)
+    and the others diagnosed again, outliers among them included (at most three passes).
     """
     from .compare import data_hash
     from .diagnose import applicable_effects, outlier_records
@@ -2923,17 +2958,27 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
         for pe in pool.values():
             if pe.covariates[0] in rf.columns and rf[pe.covariates[0]].nunique() >= 3:
                 probes.append(fit_candidate(model, pe, df, base, data_path, budget, seed))
-    if bound.kind == "progression" and outliers_left_out is None:
+    left = list(outliers_left_out or ())
+
+    def diagnose_without(found: list[dict]) -> dict:
+        # diagnose the table without the rows ``found`` (their positions in ``df``), recorded at their positions
+        # in the table given (``df`` is that table without the rows ``left``)
+        drop = [o["row"] for o in found]
+        table_row = np.delete(np.arange(len(df) + len(left)), sorted(o["row"] for o in left))
+        recs = [{**o, **rec, "row": int(table_row[o["row"]])} for o, rec in zip(found, outlier_records(df, drop))]
+        return run_diagnose(model, df.drop(index=df.index[drop]).reset_index(drop=True), data_path, out_dir,
+                            write_model, k_folds, seed, add_best, quiet, figures, budget, candidates,
+                            outliers_left_out=left + recs, started=t0)
+
+    if bound.kind == "progression" and all(o.get("scattered") for o in left):
         # after the probes: a reading that only a dependence no built-in describes explains is no outlier
-        # (a friction level set by a temperature column: the row farthest from the built-ins is the effect's)
+        # (a friction level set by a temperature column: the row farthest from the built-ins is the effect's).
+        # Once, and again after a level's readings were left out (scattered_rows): the noise bound they held
+        # may have hidden a gross reading among the others
         flagged = progression_outliers([base] + [c["ev"] for c in cands + probes],
                                        {c: rf[c].to_numpy(float) for c in covs})
         if flagged:
-            drop = [f["row"] for f in flagged]
-            recs = [{**f, **rec} for f, rec in zip(flagged, outlier_records(df, drop))]
-            return run_diagnose(model, df.drop(index=df.index[drop]).reset_index(drop=True), data_path, out_dir,
-                                write_model, k_folds, seed, add_best, quiet, figures, budget, candidates,
-                                outliers_left_out=recs, started=t0)
+            return diagnose_without(flagged)
     if bound.kind == "progression":
         revised, base = refit_progression(noise, base, cands + probes, budget, seed)
         if revised is not noise:
@@ -2972,10 +3017,17 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
     verdict = probe_verdict(base, cands, probes, verdict, UNIT[model.kind], noise=noise | {"reliable": reliable},
                             covariates=cov_values)
     verdict = blocked_caveat(verdict, rf)
-    verdict = concentrated_verdict(verdict, outliers_left_out or (), base, UNIT[model.kind], cov_values)
+    verdict = concentrated_verdict(verdict, left, base, UNIT[model.kind], cov_values)
+    verdict = left_out_level_verdict(verdict, left, base, noise, UNIT[model.kind], cov_values)
     if bound.kind == "progression":
-        verdict = scattered_verdict(verdict, noise, [base] + [c["ev"] for c in cands + probes], cov_values,
-                                    UNIT[model.kind])
+        evs = [base] + [c["ev"] for c in cands + probes]
+        verdict = scattered_verdict(verdict, noise, evs, cov_values, UNIT[model.kind])
+        if verdict.get("scattered") and not any(o.get("scattered") for o in left):
+            # the readings at that value hold the misfit that bounds the noise: leave them out and diagnose the
+            # others again (once), so that the noise and every error beside the verdict are theirs
+            level = scattered_rows(verdict["scattered"], evs, cov_values, k_folds)
+            if level:
+                return diagnose_without(level)
     cands.sort(key=lambda c: c["ev"].cv_rmse)
     dh = data_hash(data_path)
 
@@ -3126,6 +3178,45 @@ def concentrated_verdict(verdict: dict, left_out: Sequence[dict], base: DynEvalu
             "measure_where": {"covariate": cov, "from": val, "to": val}}
 
 
+def left_out_level_verdict(verdict: dict, left_out: Sequence[dict], base: DynEvaluation, noise: Mapping, unit: str,
+                           covariates: Mapping[str, np.ndarray]) -> dict:
+    """Return the verdict on the readings kept once those at the value of a covariate where the misfit gathered
+    were left out (:func:`scattered_rows`; ``left_out``: the records of the earlier passes), read as an effect that
+    is not built in acting there, as :func:`concentrated_verdict` reads flagged readings that gather.
+
+    "Nothing is missing" on the others becomes "an effect that is not built in acts at Pd_N = 0.2" ("cannot
+    tell" with the covariates named together when it is collinear with another), with the others' verdict and
+    their noise (``noise``) beside the bound the misfit held; any other outcome is kept, with the level as a
+    caveat."""
+    grp = [o for o in left_out if o.get("scattered")]
+    if not grp:
+        return verdict
+    at = grp[0]["scattered"]
+    cov, val = at["covariate"], at["value"]
+    words = (f"the best-fitting model tried ({at['model']}) missed the {len(grp)} readings at {cov} = {val:g} (rows "
+             f"{', '.join(str(o['row']) for o in grp)}) by an RMS of {at['rms']:.3g} {unit} against "
+             f"{at['rms_other']:.3g} {unit} at the others (Mann-Whitney test of their size p = {at['p']:.2g}, "
+             f"Bonferroni over {at['tests']} values), and held the noise bound at {at['noise_bound']:.3g} {unit}")
+    again = f"measure again at {cov} = {val:g} and beside it"
+    if verdict["outcome"] != "nothing_missing":
+        return {**verdict, "scattered": at,
+                "message": f"{verdict['message']}. Besides, {words}: an effect that is not built in may act there, "
+                           f"or those readings went wrong together; {again}"}
+    rest = (f"left out of the fits, the other {base.y.size} readings (noise {float(noise['sd']):.3g} {unit}) say: "
+            f"{verdict['message']}. Or those readings went wrong together (one session, one specimen): {again}")
+    group = at.get("collinear") or collinear_with(cov, covariates)  # on the whole table, as the level was read
+    if len(group) > 1:
+        msg = (f"the data cannot tell: {words}, and {cov} moves with {', '.join(c for c in group if c != cov)} in "
+               f"these data (collinear, |r| >= {COLLINEAR_R:g}): an effect that is not built in acts where they take "
+               f"these values; {rest}")
+        out = {"outcome": "cannot_tell", "covariate": None, "confounded": group}
+    else:
+        msg = f"an effect that is not built in acts at {cov} = {val:g}: {words}; {rest}"
+        out = {"outcome": "not_built_in", "covariate": cov}
+    return {**verdict, **out, "missing_effect": None, "partial": False, "message": msg, "scattered": at,
+            "measure_where": {"covariate": cov, "from": val, "to": val}}
+
+
 def _gathered_words(outliers: Sequence[dict]) -> str:
     """Return ' (rows 15, 25, 35 gather at f_Hz = 30, p = 0.008: ...)' for the readings left out that gather at
     one value of a covariate (:func:`concentrated_rows`), or ''."""
@@ -3141,6 +3232,8 @@ def diagnosis_markdown(r: dict) -> str:
     """Return diagnosis.md for dynamics data: verdict, regimes, candidates, rule."""
     u, v = r["unit"], r["verdict"]
     msg = v["message"]
+    flagged = [o for o in r.get("outliers") or () if not o.get("scattered")]
+    level = [o for o in r.get("outliers") or () if o.get("scattered")]
     lines = [f"# Diagnosis: {r['model']} on {Path(r['data']).name}", "",
              f"**Verdict.** {msg[0].upper() + msg[1:]}.", "",
              f"- Outcome: {v['outcome'].replace('_', ' ')}" + (" (partial step)" if v.get("partial") else "") + ".",
@@ -3152,9 +3245,15 @@ def diagnosis_markdown(r: dict) -> str:
              f"- Noise: {r['noise']['sd']:.3g} {u} ({r['noise']['method']}).",
              *(["- Outliers, left out of every fit (0-based data rows; how far from the best-fitting model tried, "
                 "in noise SDs of the other rows): " + ", ".join(f"row {o['row']} ({o['z']:.3g}, threshold "
-                                                                 f"{o['threshold']:.3g})" for o in r["outliers"])
-                + ". No other model tried accounts for these readings: check them" + _gathered_words(r["outliers"])
-                + "."] if r.get("outliers") else []),
+                                                                 f"{o['threshold']:.3g})" for o in flagged)
+                + ". No other model tried accounts for these readings: check them" + _gathered_words(flagged)
+                + "."] if flagged else []),
+             *([f"- Left out of every fit, the readings at {level[0]['scattered']['covariate']} = "
+                f"{level[0]['scattered']['value']:g}, where the misfit gathered (0-based data rows; residual under "
+                f"{level[0]['scattered']['model']}): "
+                + ", ".join(f"row {o['row']} ({o['residual']:+.3g} {u})" for o in level)
+                + f". With them, that model's residual SD bounded the noise at "
+                f"{level[0]['scattered']['noise_bound']:.3g} {u}."] if level else []),
              f"- Model as is: held-out {r['model_as_is']['cv_rmse']:.3g} ± {r['model_as_is']['cv_rmse_se']:.2g} {u} "
              f"(standardised by the error model), {r['cv']['folds']} folds {r['cv']['groups']}"
              + (lambda h: f"; as the truth on these runs it is held out at {h['mean']:.3g} ± {h['sd']:.2g} {u} "
@@ -3259,6 +3358,16 @@ def _nice_value(at: Mapping) -> str:
     return f"{name} = {at['value']:g}" + (f" {unit_label(at['covariate'])}" if unit else "")
 
 
+def _left_out_why(o: Mapping) -> str:
+    """Return why a reading was left out, for a legend: 'gathered at f = 30 Hz' (flagged readings that gather,
+    :func:`concentrated_rows`), 'misfit gathered at P_d = 0.2 N' (:func:`scattered_rows`) or '' (an outlier)."""
+    if o.get("concentrated"):
+        return f"gathered at {_nice_value(o['concentrated'])}"
+    if o.get("scattered"):
+        return f"misfit gathered at {_nice_value(o['scattered'])}"
+    return ""
+
+
 def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str,
                     covariate: str | Sequence[str] | None = None, rho: float = 0.0,
                     outliers: Sequence[dict] = ()):
@@ -3267,7 +3376,8 @@ def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str
     - progression: against the drive frequency and amplitude, and against ``covariate`` (the one a verdict
       names, or the collinear ones it cannot tell apart) when it is another column; the readings left out as
       ``outliers`` (:func:`progression_outliers` records) as crosses at their residual under the model that
-      flagged them (those gathered at one value of a covariate, :func:`concentrated_rows`, as diamonds);
+      flagged them (those gathered at one value of a covariate, :func:`concentrated_rows`, and the readings at
+      the value where the misfit gathered, :func:`scattered_rows`, as diamonds);
     - trajectory: the position residuals against the frame time, and a second row with each run's residual
       drift rate (:func:`run_residual_rates`, its SE at the noise's frame-to-frame correlation ``rho``) against
       f, P_d and ``covariate`` when the runs hold 2 or more values of it. A run compared by its drift over
@@ -3298,8 +3408,7 @@ def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str
         if "run" in frames.columns and len(frames):
             per_run = run_residual_rates(frames, col, float(ev.sigma), rho)
             run_cols = tuple(dict.fromkeys(c for c in wanted if c in per_run.columns and per_run[c].nunique() >= 2))
-    left = pd.DataFrame([{**o, col: o["residual"], "why": (f"gathered at {_nice_value(o['concentrated'])}"
-                                                         if o.get("concentrated") else "")}
+    left = pd.DataFrame([{**o, col: o["residual"], "why": _left_out_why(o)}
                          for o in outliers if "residual" in o]) if outliers else None
     fig = dynamics_residual_figure(frames, xcols, col, UNIT[ev.bound.kind], float(ev.sigma),
                                    RESPONSE_CLASSES + ("failed",), title, drift, per_run, run_cols, rho, left)
