@@ -252,6 +252,17 @@ def test_a_verdict_reads_readings_gathered_at_one_drive_as_an_effect_there():
     assert DL.concentrated_verdict(null, left[3:], base, "mm/s", covs) is null
 
 
+def _misfit_at_one_amplitude():
+    """Return (readings, truth, rows at 0.2 N) of the 10 x 4 grid (GRID), noise 0.5 mm/s, with the shifts the
+    engine gave the ten readings at 0.2 N under friction 1.3 x there (diagnose, full effort, seed 0) [mm/s]."""
+    rng = np.random.default_rng(3)
+    truth = rng.uniform(-20.0, 60.0, 40)
+    y = truth + rng.normal(0.0, 0.5, 40)
+    at02 = np.flatnonzero(GRID["Pd_N"] == 0.2)
+    y[at02] += [-0.64, 0.2, -3.16, -3.54, -6.66, -4.37, 8.8, 8.16, 7.6, 7.12]
+    return y, truth, at02
+
+
 def test_a_misfit_gathered_at_one_amplitude_is_not_read_as_noise():
     """scattered_level and scattered_verdict (no engine): without replicates the noise is bounded by the best
     fit's residual SD, which a misfit gathered at one value of a covariate inflates, and "nothing is missing" then
@@ -259,12 +270,8 @@ def test_a_misfit_gathered_at_one_amplitude_is_not_read_as_noise():
     the 10 x 4 grid, noise 0.5 mm/s, seed 0): no model tried nor probe followed the ten readings there (-6.7 to
     +8.8 mm/s), the noise was bounded at 2.49 mm/s and the verdict was "nothing is missing". The residuals'
     sizes at each value are ranked against the others' (Mann-Whitney), Bonferroni over the values."""
-    rng = np.random.default_rng(3)
     n, sd = 40, 0.5
-    truth = rng.uniform(-20.0, 60.0, n)
-    y = truth + rng.normal(0.0, sd, n)
-    at02 = np.flatnonzero(GRID["Pd_N"] == 0.2)
-    y[at02] += [-0.64, 0.2, -3.16, -3.54, -6.66, -4.37, 8.8, 8.16, 7.6, 7.12]  # the engine's shifts there
+    y, truth, at02 = _misfit_at_one_amplitude()
     ev = _outlier_ev(y, truth)
     at = DL.scattered_level(ev, GRID)
     assert (at["covariate"], at["value"], at["n"], at["tests"]) == ("Pd_N", 0.2, 10, 14), at
@@ -302,12 +309,7 @@ def test_the_readings_where_a_misfit_gathers_are_left_out_and_the_others_speak_f
     Before, the verdict named Pd_N = 0.2 but the report kept the bound the misfit held (2.49 mm/s against a
     generating 0.5; diagnose, full effort, friction 1.3 x at 0.2 N, 10 x 4 grid, seed 0) and measured every
     held-out error and the figure's band against it."""
-    rng = np.random.default_rng(3)
-    n, sd = 40, 0.5
-    truth = rng.uniform(-20.0, 60.0, n)
-    y = truth + rng.normal(0.0, sd, n)
-    at02 = np.flatnonzero(GRID["Pd_N"] == 0.2)
-    y[at02] += [-0.64, 0.2, -3.16, -3.54, -6.66, -4.37, 8.8, 8.16, 7.6, 7.12]  # the engine's shifts there
+    y, truth, at02 = _misfit_at_one_amplitude()
     ev = _outlier_ev(y, truth)
     null = {"outcome": "nothing_missing", "missing_effect": None, "covariate": None, "confounded": [],
             "message": "nothing is missing: held-out RMSE 0.47 mm/s"}

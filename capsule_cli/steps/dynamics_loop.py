@@ -3159,22 +3159,32 @@ def concentrated_verdict(verdict: dict, left_out: Sequence[dict], base: DynEvalu
              f"{', '.join(str(o['row']) for o in grp)}) are off every model tried by "
              f"{min(zs):.3g}-{max(zs):.3g} noise SDs, more gathered there than independent gross errors would be "
              f"(p = {at['p']:.2g})")
-    again = f"measure again at {cov} = {val:g} and between it and its neighbours"
+    return _effect_at_value(verdict, words, f"the other {base.y.size} readings", cov, val,
+                            collinear_with(cov, covariates), "between it and its neighbours")
+
+
+def _effect_at_value(verdict: dict, words: str, others: str, cov: str, val: float, group: Sequence[str],
+                     beside: str, **keep) -> dict:
+    """Return ``verdict`` with readings left out at ``cov`` = ``val`` (``words``: why) read as an effect that is not
+    built in acting there (:func:`concentrated_verdict`, :func:`left_out_level_verdict`): "nothing is missing" on
+    ``others`` becomes that finding ("cannot tell" when ``group``, the covariates collinear with ``cov``, holds
+    more than it), the others' verdict kept in the message; any other outcome is kept with the readings as a
+    caveat. ``beside``: where else to measure; ``keep``: keys added to the verdict either way."""
+    again = f"measure again at {cov} = {val:g} and {beside}"
     if verdict["outcome"] != "nothing_missing":
-        return {**verdict, "message": f"{verdict['message']}. Besides, {words}: an effect that is not built in may "
-                                      f"act there, or those readings went wrong together; {again}"}
-    group = collinear_with(cov, covariates)
-    rest = (f"left out of the fits, the other {base.y.size} readings say: {verdict['message']}. Or those readings "
-            f"went wrong together (one session, one specimen): {again}")
+        return {**verdict, **keep, "message": f"{verdict['message']}. Besides, {words}: an effect that is not built "
+                                              f"in may act there, or those readings went wrong together; {again}"}
+    rest = (f"left out of the fits, {others} say: {verdict['message']}. Or those readings went wrong together (one "
+            f"session, one specimen): {again}")
     if len(group) > 1:
         msg = (f"the data cannot tell: {words}, and {cov} moves with {', '.join(c for c in group if c != cov)} in "
                f"these data (collinear, |r| >= {COLLINEAR_R:g}): an effect that is not built in acts where they take "
                f"these values; {rest}")
-        out = {"outcome": "cannot_tell", "covariate": None, "confounded": group}
+        out = {"outcome": "cannot_tell", "covariate": None, "confounded": list(group)}
     else:
         msg = f"an effect that is not built in acts at {cov} = {val:g}: {words}; {rest}"
         out = {"outcome": "not_built_in", "covariate": cov}
-    return {**verdict, **out, "missing_effect": None, "partial": False, "message": msg,
+    return {**verdict, **out, **keep, "missing_effect": None, "partial": False, "message": msg,
             "measure_where": {"covariate": cov, "from": val, "to": val}}
 
 
@@ -3197,24 +3207,9 @@ def left_out_level_verdict(verdict: dict, left_out: Sequence[dict], base: DynEva
              f"{', '.join(str(o['row']) for o in grp)}) by an RMS of {at['rms']:.3g} {unit} against "
              f"{at['rms_other']:.3g} {unit} at the others (Mann-Whitney test of their size p = {at['p']:.2g}, "
              f"Bonferroni over {at['tests']} values), and held the noise bound at {at['noise_bound']:.3g} {unit}")
-    again = f"measure again at {cov} = {val:g} and beside it"
-    if verdict["outcome"] != "nothing_missing":
-        return {**verdict, "scattered": at,
-                "message": f"{verdict['message']}. Besides, {words}: an effect that is not built in may act there, "
-                           f"or those readings went wrong together; {again}"}
-    rest = (f"left out of the fits, the other {base.y.size} readings (noise {float(noise['sd']):.3g} {unit}) say: "
-            f"{verdict['message']}. Or those readings went wrong together (one session, one specimen): {again}")
     group = at.get("collinear") or collinear_with(cov, covariates)  # on the whole table, as the level was read
-    if len(group) > 1:
-        msg = (f"the data cannot tell: {words}, and {cov} moves with {', '.join(c for c in group if c != cov)} in "
-               f"these data (collinear, |r| >= {COLLINEAR_R:g}): an effect that is not built in acts where they take "
-               f"these values; {rest}")
-        out = {"outcome": "cannot_tell", "covariate": None, "confounded": group}
-    else:
-        msg = f"an effect that is not built in acts at {cov} = {val:g}: {words}; {rest}"
-        out = {"outcome": "not_built_in", "covariate": cov}
-    return {**verdict, **out, "missing_effect": None, "partial": False, "message": msg, "scattered": at,
-            "measure_where": {"covariate": cov, "from": val, "to": val}}
+    return _effect_at_value(verdict, words, f"the other {base.y.size} readings (noise {float(noise['sd']):.3g} {unit})",
+                            cov, val, group, "beside it", scattered=at)
 
 
 def _gathered_words(outliers: Sequence[dict]) -> str:
