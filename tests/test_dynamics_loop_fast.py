@@ -302,6 +302,29 @@ def test_a_misfit_gathered_at_one_amplitude_is_not_read_as_noise():
         assert hits <= most, (hits, most)
 
 
+def test_a_cannot_tell_says_where_the_misfit_gathers():
+    """scattered_caveat (no engine): "the data cannot tell" keeps its outcome (a built-in effect fitted short of
+    the noise also leaves its misfit where its effect is largest) but says where the best fit's misfit gathers.
+    Measured with diagnose (friction 1.3 x at 0.2 N, the 40-condition grid x 2 replicates, full effort): "the data
+    cannot tell", and nothing in the message pointed at the amplitude."""
+    y, truth, _ = _misfit_at_one_amplitude()
+    ev = _outlier_ev(y, truth)
+    unsure = {"outcome": "cannot_tell", "missing_effect": None, "covariate": None, "confounded": [],
+              "message": "the data cannot tell: held-out RMSE 2.58 mm/s exceeds the 0.524 mm/s expected"}
+    v = DL.scattered_caveat(unsure, [ev], GRID, "mm/s")
+    assert (v["outcome"], v["covariate"], v["missing_effect"]) == ("cannot_tell", None, None), v
+    assert v["message"].startswith(unsure["message"] + ". Besides, the misfit gathers at Pd_N = 0.2: the "
+                                   "best-fitting model tried (the model as is) misses the 10 readings there"), v
+    assert v["message"].endswith("measure again at Pd_N = 0.2 and beside it"), v
+    assert (v["scattered"]["covariate"], v["scattered"]["value"], v["scattered"]["n"]) == ("Pd_N", 0.2, 10)
+    # other outcomes, a caveat already given, or no level standing out: as they were
+    for other in ({**unsure, "outcome": "nothing_missing"}, {**unsure, "scattered": v["scattered"]}):
+        assert DL.scattered_caveat(other, [ev], GRID, "mm/s") is other
+    rng = np.random.default_rng(4)
+    plain = _outlier_ev(truth + rng.normal(0.0, 0.5, 40), truth)
+    assert DL.scattered_caveat(unsure, [plain], GRID, "mm/s") is unsure
+
+
 def test_the_readings_where_a_misfit_gathers_are_left_out_and_the_others_speak_for_themselves():
     """scattered_rows and left_out_level_verdict (no engine): once the misfit of the best fit is found gathered at
     one value of a covariate against a noise bounded by that fit's residual SD, every reading at that value is
