@@ -1959,6 +1959,17 @@ def scattered_level(ev: DynEvaluation, covariates: Mapping[str, np.ndarray], alp
             "rms_other": float(np.sqrt(np.mean(r[rest] ** 2))), "p": min(1.0, p * len(tests)), "tests": len(tests)}
 
 
+def best_fit_level(evs: Sequence[DynEvaluation], covariates: Mapping[str, np.ndarray]) -> dict | None:
+    """Return :func:`scattered_level` of the best-fitting model tried (the least :func:`standardised_residual_sd`
+    of ``evs``, as the noise bound and the outlier test read it) with ``model``, its name, or None."""
+    fits = residual_fits(evs)
+    if not fits:
+        return None
+    best = min(fits, key=lambda t: t[0])[1]
+    at = scattered_level(best, covariates)
+    return None if at is None else {**at, "model": _model_label(best)}
+
+
 def scattered_verdict(verdict: dict, noise: Mapping, evs: Sequence[DynEvaluation],
                       covariates: Mapping[str, np.ndarray], unit: str) -> dict:
     """Return the verdict, "nothing is missing" against a noise bounded by a fit's own residual SD (no replicates:
@@ -1969,17 +1980,13 @@ def scattered_verdict(verdict: dict, noise: Mapping, evs: Sequence[DynEvaluation
     verdicts, and a noise known from replicates, are kept."""
     if verdict["outcome"] != "nothing_missing" or not noise.get("residual_of"):
         return verdict
-    fits = residual_fits(evs)
-    if not fits:
-        return verdict
-    best = min(fits, key=lambda t: t[0])[1]
-    at = scattered_level(best, covariates)
+    at = best_fit_level(evs, covariates)
     if at is None:
         return verdict
     cov, val = at["covariate"], at["value"]
     group = collinear_with(cov, covariates)
-    at = {**at, "model": _model_label(best), "noise_bound": float(noise["sd"]), "collinear": list(group)}
-    words = (f"the best-fitting model tried ({_model_label(best)}) misses the {at['n']} readings at {cov} = "
+    at = {**at, "noise_bound": float(noise["sd"]), "collinear": list(group)}
+    words = (f"the best-fitting model tried ({at['model']}) misses the {at['n']} readings at {cov} = "
              f"{val:g} by an RMS of {at['rms']:.3g} {unit} against {at['rms_other']:.3g} {unit} at the others "
              f"(Mann-Whitney test of their size p = {at['p']:.2g}, Bonferroni over {at['tests']} values), and the "
              f"noise bound ({float(noise['sd']):.3g} {unit}, that model's residual SD without replicates) holds "
@@ -2008,14 +2015,9 @@ def scattered_caveat(verdict: dict, evs: Sequence[DynEvaluation], covariates: Ma
     where the model fails named response classes at 15-42 Hz and 0.1-0.25 N, not the amplitude."""
     if verdict["outcome"] != "cannot_tell" or verdict.get("scattered"):
         return verdict
-    fits = residual_fits(evs)
-    if not fits:
-        return verdict
-    best = min(fits, key=lambda t: t[0])[1]
-    at = scattered_level(best, covariates)
+    at = best_fit_level(evs, covariates)
     if at is None:
         return verdict
-    at = {**at, "model": _model_label(best)}
     cov, val = at["covariate"], at["value"]
     return {**verdict, "scattered": at, "message": (
         f"{verdict['message']}. Besides, the misfit gathers at {cov} = {val:g}: the best-fitting model tried "
