@@ -1959,14 +1959,18 @@ def scattered_level(ev: DynEvaluation, covariates: Mapping[str, np.ndarray], alp
             "rms_other": float(np.sqrt(np.mean(r[rest] ** 2))), "p": min(1.0, p * len(tests)), "tests": len(tests)}
 
 
-def best_fit_level(evs: Sequence[DynEvaluation], covariates: Mapping[str, np.ndarray]) -> dict | None:
-    """Return :func:`scattered_level` of the best-fitting model tried (the least :func:`standardised_residual_sd`
-    of ``evs``, as the noise bound and the outlier test read it) with ``model``, its name, or None."""
+def best_fit(evs: Sequence[DynEvaluation]) -> DynEvaluation | None:
+    """Return the best-fitting model tried of ``evs`` (the least :func:`standardised_residual_sd` among
+    :func:`residual_fits`, as the noise bound and the outlier test read it), or None."""
     fits = residual_fits(evs)
-    if not fits:
-        return None
-    best = min(fits, key=lambda t: t[0])[1]
-    at = scattered_level(best, covariates)
+    return min(fits, key=lambda t: t[0])[1] if fits else None
+
+
+def best_fit_level(evs: Sequence[DynEvaluation], covariates: Mapping[str, np.ndarray]) -> dict | None:
+    """Return :func:`scattered_level` of the best-fitting model tried (:func:`best_fit`) with ``model``, its name,
+    or None."""
+    best = best_fit(evs)
+    at = None if best is None else scattered_level(best, covariates)
     return None if at is None else {**at, "model": _model_label(best)}
 
 
@@ -2041,10 +2045,9 @@ def scattered_rows(at: Mapping, evs: Sequence[DynEvaluation], covariates: Mappin
     measured against it. Each record: row (0-based position in the table given), z (|residual| under the
     best-fitting model tried, standardised by its error model, in its residual SDs), that model, its residual
     there [response unit], and ``scattered``: ``at``."""
-    fits = residual_fits(evs)
-    if not fits or at.get("covariate") not in covariates:
+    best = best_fit(evs)
+    if best is None or at.get("covariate") not in covariates:
         return []
-    best = min(fits, key=lambda t: t[0])[1]
     x = np.asarray(covariates[at["covariate"]], float)
     rows = np.flatnonzero(x == at["value"])
     others = x.size - rows.size
@@ -3262,6 +3265,7 @@ def diagnosis_markdown(r: dict) -> str:
     msg = v["message"]
     flagged = [o for o in r.get("outliers") or () if not o.get("scattered")]
     level = [o for o in r.get("outliers") or () if o.get("scattered")]
+    lv = level[0]["scattered"] if level else {}
     lines = [f"# Diagnosis: {r['model']} on {Path(r['data']).name}", "",
              f"**Verdict.** {msg[0].upper() + msg[1:]}.", "",
              f"- Outcome: {v['outcome'].replace('_', ' ')}" + (" (partial step)" if v.get("partial") else "") + ".",
@@ -3276,12 +3280,11 @@ def diagnosis_markdown(r: dict) -> str:
                                                                  f"{o['threshold']:.3g})" for o in flagged)
                 + ". No other model tried accounts for these readings: check them" + _gathered_words(flagged)
                 + "."] if flagged else []),
-             *([f"- Left out of every fit, the readings at {level[0]['scattered']['covariate']} = "
-                f"{level[0]['scattered']['value']:g}, where the misfit gathered (0-based data rows; residual under "
-                f"{level[0]['scattered']['model']}): "
+             *([f"- Left out of every fit, the readings at {lv['covariate']} = {lv['value']:g}, where the misfit "
+                f"gathered (0-based data rows; residual under {lv['model']}): "
                 + ", ".join(f"row {o['row']} ({o['residual']:+.3g} {u})" for o in level)
-                + f". With them, that model's residual SD bounded the noise at "
-                f"{level[0]['scattered']['noise_bound']:.3g} {u}."] if level else []),
+                + f". With them, that model's residual SD bounded the noise at {lv['noise_bound']:.3g} {u}."]
+               if level else []),
              f"- Model as is: held-out {r['model_as_is']['cv_rmse']:.3g} ± {r['model_as_is']['cv_rmse_se']:.2g} {u} "
              f"(standardised by the error model), {r['cv']['folds']} folds {r['cv']['groups']}"
              + (lambda h: f"; as the truth on these runs it is held out at {h['mean']:.3g} ± {h['sd']:.2g} {u} "
