@@ -1799,12 +1799,16 @@ def progression_noise(noise: dict, evs: Sequence[DynEvaluation]) -> dict:
 
 
 def flaggable(ev: DynEvaluation, s: float) -> np.ndarray:
-    """Return the rows of a progression fit ``ev`` (bool mask) whose error is the noise's, which
+    """Return the rows of a dynamics fit ``ev`` (bool mask) whose error is the noise's, which
     :func:`fit_outlier_rows` may flag: a predicted spread over windows and starting states below
-    MULTISTABLE_SPREAD_FRACTION x ``s`` (the noise SD, response unit), and not on a knife edge."""
+    MULTISTABLE_SPREAD_FRACTION x ``s`` (the noise SD, response unit), not on a knife edge, and for a
+    trajectory a frame compared by position (not a run's average-velocity row)."""
     can = np.nan_to_num(np.asarray(ev.sim["spread"], float)) < MULTISTABLE_SPREAD_FRACTION * s
     if "knife_edge" in ev.sim:
         can &= ~np.asarray(ev.sim["knife_edge"], bool)
+    if ev.bound.kind == "trajectory":
+        # a frame compared by position (a tracking error is a frame's); a run's drift rate holds all its frames
+        can &= np.array([mode == "position" for mode, _, _ in ev.bound.rows], bool)
     return can
 
 
@@ -1898,15 +1902,19 @@ def concentrated_rows(rows: Sequence[int], covariates: Mapping[str, np.ndarray],
 ALPHA_SCATTER = ALPHA_STRUCTURE / 2
 
 
-#: the rule's sentences on progression readings that no model tried accounts for, printed in diagnosis.md
-PROGRESSION_RULE = (
-    " Progressions: a reading that no model tried accounts for (generalized ESD on the best fit's standardised "
-    f"residuals, Bonferroni over the rows at {OUTLIER_ALPHA:.0%}, where the fit predicts a spread below "
-    f"{MULTISTABLE_SPREAD_FRACTION:g} noise SD; kept when another model tried with shifts at the other flagged "
-    "readings has an AIC no higher) is left out as an outlier and the table diagnosed again; flagged readings that "
-    "gather at one value of a covariate more than independent errors would (hypergeometric over the rows that "
-    f"could be flagged, Bonferroni over the covariates, p < {ALPHA_STRUCTURE:g}) are an effect that is not built "
-    "in acting there, and turn \"nothing is missing\" on the other readings into that finding. Without replicates "
+#: the rule's sentences on readings that no model tried accounts for (:func:`outlier_rows`), printed in diagnosis.md
+OUTLIER_RULE = (
+    " A reading (a progression speed, or a trajectory frame compared by position: a tracking error is a frame's) "
+    "that no model tried accounts for (generalized ESD on the best fit's standardised residuals, Bonferroni over "
+    f"the rows at {OUTLIER_ALPHA:.0%}, where the fit predicts a spread below {MULTISTABLE_SPREAD_FRACTION:g} noise "
+    "SD and no knife edge; kept when another model tried with shifts at the other flagged readings has an AIC no "
+    "higher) is left out as an outlier and the table diagnosed again; flagged readings that gather at one value of "
+    "a covariate more than independent errors would (hypergeometric over the rows that could be flagged, "
+    f"Bonferroni over the covariates, p < {ALPHA_STRUCTURE:g}) are an effect that is not built in acting there, "
+    "and turn \"nothing is missing\" on the other readings into that finding.")
+#: the rule's sentences on progression readings, printed in diagnosis.md: outliers, and where a misfit gathers
+PROGRESSION_RULE = OUTLIER_RULE + (
+    " Progressions without replicates: "
     "the noise is bounded by the best fit's residual SD, so \"nothing is missing\" also needs that fit's residuals "
     "to be no larger at one value of a covariate than at the others (one-sided Mann-Whitney on their sizes, "
     f"Bonferroni over the values, p < {ALPHA_SCATTER:g}); otherwise an effect that is not built in acts there, and "
@@ -2059,10 +2067,10 @@ def scattered_rows(at: Mapping, evs: Sequence[DynEvaluation], covariates: Mappin
              "residual": float(best.resid[i]), "scattered": dict(at)} for i in rows]
 
 
-def progression_outliers(evs: Sequence[DynEvaluation], covariates: Mapping[str, np.ndarray] | None = None
-                         ) -> list[dict]:
-    """Return the rows of a progression table that no model tried accounts for, as the quasi-static loop flags
-    a row that a mean shift accounts for better than every model tried.
+def outlier_rows(evs: Sequence[DynEvaluation], covariates: Mapping[str, np.ndarray] | None = None) -> list[dict]:
+    """Return the rows of a dynamics table that no model tried accounts for (progression readings, trajectory
+    frames compared by position), as the quasi-static loop flags a row that a mean shift accounts for better
+    than every model tried.
 
     Rows F flagged by :func:`fit_outlier_rows` under the best-fitting model tried (the least
     :func:`standardised_residual_sd`, the model :func:`progression_noise` bounds the noise with) are outliers
@@ -2079,7 +2087,11 @@ def progression_outliers(evs: Sequence[DynEvaluation], covariates: Mapping[str, 
     gross error inflates that bound and every standardised error: nothing hidden in 40 conditions (noise
     0.5 mm/s) with two readings 6 mm/s off gave "nothing is missing" against a noise of at most 1.29 mm/s,
     the two rows neither flagged nor left out; a speed law hidden with the same two readings was named, the
-    noise bound 1.47 mm/s. Both rows flagged and left out: 0.41 and 0.40 mm/s."""
+    noise bound 1.47 mm/s. Both rows flagged and left out: 0.41 and 0.40 mm/s. Trajectories, where the noise is
+    bounded by the best fit's residuals too (:func:`trajectory_noise`): three null runs from rest (24-40 Hz,
+    0.6 s, 100 frames per second, position noise 0.1 mm) with two frames a tracker got 2-5 mm wrong gave "an
+    effect that is not built in depends on time_s" against a noise of at most 0.453 mm; both frames flagged and
+    left out: "nothing is missing", 0.0933 mm (0.0929 without the two errors)."""
     fits = residual_fits(evs)
     if not fits:
         return []
@@ -2108,6 +2120,8 @@ def progression_outliers(evs: Sequence[DynEvaluation], covariates: Mapping[str, 
         for o in out:
             if o["row"] in at["rows"]:
                 o["concentrated"] = {k: v for k, v in at.items() if k != "rows"}
+    if best.bound.kind == "trajectory":  # a frame's comparison row -> its row in the table (bound.rows)
+        out = [{**o, "row": int(best.bound.rows[o["row"]][2])} for o in out]
     return sorted(out, key=lambda o: o["row"])
 
 
@@ -2923,8 +2937,9 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
     subset is stated in diagnosis.json (``candidates_tried``) and the verdict's Bonferroni factor counts
     only those tried.
 
-    Progressions: rows that no model tried accounts for (:func:`progression_outliers`, after the model as is,
-    the candidates and any covariate probes are fitted) are reported and left out, and the table is diagnosed
+    Rows that no model tried accounts for (progression readings, trajectory frames compared by position:
+    :func:`outlier_rows`, after the model as is, the candidates and any covariate probes are fitted) are
+    reported and left out, and the table is diagnosed
     again without them (once; ``outliers_left_out``: the records of the rows left out so far, positions in the
     table given, for the later passes, and ``started``: the first pass's start, time.perf_counter(), so that
     budget.seconds counts every pass). Without replicates, when the misfit of the best fit gathers at one value of
@@ -3005,12 +3020,12 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
                             write_model, k_folds, seed, add_best, quiet, figures, budget, candidates,
                             outliers_left_out=left + recs, started=t0)
 
-    if bound.kind == "progression" and all(o.get("scattered") for o in left):
+    if all(o.get("scattered") for o in left):
         # after the probes: a reading that only a dependence no built-in describes explains is no outlier
         # (a friction level set by a temperature column: the row farthest from the built-ins is the effect's).
         # Once, and again after a level's readings were left out (scattered_rows): the noise bound they held
-        # may have hidden a gross reading among the others
-        flagged = progression_outliers([base] + [c["ev"] for c in cands + probes],
+        # may have hidden a gross reading among the others. Trajectories: a frame the tracker got wrong
+        flagged = outlier_rows([base] + [c["ev"] for c in cands + probes],
                                        {c: rf[c].to_numpy(float) for c in covs})
         if flagged:
             return diagnose_without(flagged)
@@ -3123,7 +3138,7 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
                                "(Bonferroni over candidates and probes) and beats every built-in by more than "
                                f"{PROBE_Z:g} standard errors of held-out RMSE, or is held out at the noise where the "
                                "best built-in is not, names its covariate (an effect that is not built in)."
-                             + (PROGRESSION_RULE if bound.kind == "progression" else "")),
+                             + (PROGRESSION_RULE if bound.kind == "progression" else OUTLIER_RULE)),
         "budget": {**budget.__dict__, "seconds": time.perf_counter() - t0,
                    "base_seconds": base.seconds, "base_evaluations": bound.n_sim},
     }
@@ -3175,7 +3190,7 @@ def _write_model(model: Model, chosen, path: Path, data_path, verdict, named: bo
 def concentrated_verdict(verdict: dict, left_out: Sequence[dict], base: DynEvaluation, unit: str,
                          covariates: Mapping[str, np.ndarray]) -> dict:
     """Return the verdict with the readings left out because they gather at one value of a covariate
-    (:func:`concentrated_rows`; ``left_out``: the :func:`progression_outliers` records of the first pass) read as
+    (:func:`concentrated_rows`; ``left_out``: the :func:`outlier_rows` records of the first pass) read as
     an effect that is not built in acting there, not as independent gross errors.
 
     They stay out of the fits (the noise and the held-out errors are those of the other readings, where the model
@@ -3406,7 +3421,7 @@ def _plot_residuals(res: pd.DataFrame, ev: DynEvaluation, path: Path, title: str
 
     - progression: against the drive frequency and amplitude, and against ``covariate`` (the one a verdict
       names, or the collinear ones it cannot tell apart) when it is another column; the readings left out as
-      ``outliers`` (:func:`progression_outliers` records) as crosses at their residual under the model that
+      ``outliers`` (:func:`outlier_rows` records) as crosses at their residual under the model that
       flagged them (those gathered at one value of a covariate, :func:`concentrated_rows`, and the readings at
       the value where the misfit gathered, :func:`scattered_rows`, as diamonds);
     - trajectory: the position residuals against the frame time, and a second row with each run's residual
