@@ -626,9 +626,18 @@ def test_a_frame_left_out_is_drawn_against_the_model_the_other_frames_are_drawn_
     drawn = DL.drawn_left_out(SimpleNamespace(bound=kept, theta=theta), recs)
     assert [o["residual"] for o in drawn] == pytest.approx(residual[left], abs=1e-9)
     assert np.all(np.abs(residual[left] - 3.0) > 0.5)  # not the flagging model's
-    # a progression reading keeps the residual it was flagged with (a sweep's condition has a history)
-    prog = SimpleNamespace(bound=SimpleNamespace(kind="progression"), theta=theta)
-    assert DL.drawn_left_out(prog, recs) == recs
+    # a progression reading run from rest: its condition simulated alone, the value it has in the whole table; a
+    # reading of a continuation sweep keeps the residual it was flagged with (its condition has a history)
+    truth_p = _model(tmp_path, "ptruth_drawn", params={"Pf_N": 0.02})
+    dp = DL.synthesize_progression(truth_p, DESIGN, NOISE, 1, 3)
+    for start, drawn_at in (("rest", "model"), ("up", "flagged")):
+        model = _model(tmp_path, f"pbase_{start}", params={"Pf_N": FREE_PF}, protocol=PROTO | {"start": start})
+        whole = DL.DynBound(model, dp)
+        residual = whole.observed() - whole.simulate(theta, classify=False)["pred"]
+        kept = DL.DynBound(model, dp.drop(index=[1, 4]).reset_index(drop=True))
+        recs = [{"row": i, "residual": -9.0, **dp.iloc[i].to_dict()} for i in (1, 4)]
+        drawn = [o["residual"] for o in DL.drawn_left_out(SimpleNamespace(bound=kept, theta=theta), recs)]
+        assert drawn == (pytest.approx(residual[[1, 4]], abs=1e-9) if drawn_at == "model" else [-9.0, -9.0])
 
 
 def test_only_frames_compared_by_position_can_be_flagged():

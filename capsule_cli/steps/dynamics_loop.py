@@ -3501,11 +3501,22 @@ def drawn_left_out(ev: DynEvaluation, left_out: Sequence[dict]) -> list[dict]:
     under ``ev``'s model where a simulation gives it alone: a trajectory frame, its run simulated from rest to the
     frame's time, so that the residual figure draws it against the model the other frames are drawn against
     (the record's residual is the flagging model's: in a 4-run diagnose a 2.5 mm tracking error was drawn at
-    +2.7 mm beside its run's frames at +4.3 mm). A progression reading keeps its residual under the model that
-    flagged it: a condition of a continuation sweep takes its state from the conditions before it."""
+    +2.7 mm beside its run's frames at +4.3 mm); a progression reading run from rest, its condition simulated
+    alone. A reading of a continuation sweep keeps its residual under the model that flagged it: its condition
+    takes its state from the conditions before it, some of which may be left out too."""
     b = ev.bound
-    if b.kind != "trajectory":
-        return list(left_out)
+    if b.kind == "progression":
+        if b.protocol.start != "rest" or not left_out:
+            return list(left_out)
+        cols = [c for c in b.df.columns if all(c in o for o in left_out)]
+        try:
+            alone = DynBound(b.model, pd.DataFrame([{c: o[c] for c in cols} for o in left_out]), where=b.where,
+                             rk_rtol=None if b.options is None else b.options.rk_rtol)
+            pred = alone.simulate(ev.theta, classify=False)["pred"]
+        except (InputError, RuntimeError, ValueError, FloatingPointError, KeyError):
+            return list(left_out)
+        return [{**o, "residual": float(o[b.response]) - float(p)} if math.isfinite(p) else o
+                for o, p in zip(left_out, pred)]
     runs = {str(r): r for r in b.run_drive}
     out = []
     for o in left_out:
