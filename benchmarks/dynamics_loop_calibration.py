@@ -26,6 +26,8 @@ frames per second, white position noise POS_NOISE), the runs of one design per s
     runs3: 24 Hz / 0.15 N, 32 Hz / 0.20 N, 40 Hz / 0.25 N, 0.6 s each
     runs4: 20 Hz / 0.15 N, 28 Hz / 0.15 N, 36 Hz / 0.20 N, 40 Hz / 0.25 N, 0.5 s each
     long3: 22 Hz / 0.15 N, 30 Hz / 0.20 N, 38 Hz / 0.25 N, 3 s each (``--designs long3``)
+``--glitch-frames K``: K frames of each null trajectory set (drawn at random) moved by 2-5 mm either way, as a tracker
+that lost the marker for a frame puts them: diagnose should flag and leave them out and say "nothing is missing".
 """
 from __future__ import annotations
 
@@ -82,9 +84,18 @@ def _models(tmp: Path, start: str = "rest", kind: str = "progression"):
     return out["truth"], out["base"]
 
 
+def with_glitches(df: pd.DataFrame, k: int, seed: int) -> tuple[pd.DataFrame, list[int]]:
+    """Return the trajectory table with ``k`` frames (at random) moved by 2-5 mm either way, and their rows."""
+    rng = np.random.default_rng(20_000 + seed)
+    rows = sorted(int(i) for i in rng.choice(len(df), k, replace=False))
+    df = df.copy()
+    df.loc[rows, "capsule_mm"] += rng.choice([-1.0, 1.0], k) * rng.uniform(2.0, 5.0, k)
+    return df, rows
+
+
 def run(seeds: int, effort: str, candidates: list[str] | None, out: str | None, first_seed: int = 0,
         replicates: int = 2, start: str = "rest", designs: tuple[str, ...] = ("six", "ten"),
-        kind: str = "progression", position_noise_mm: float = POS_NOISE) -> dict:
+        kind: str = "progression", position_noise_mm: float = POS_NOISE, glitch_frames: int = 0) -> dict:
     budget = DL.EFFORTS[effort]
     rows, t0 = [], time.perf_counter()
     rec: dict = {}
@@ -96,6 +107,7 @@ def run(seeds: int, effort: str, candidates: list[str] | None, out: str | None, 
             dname = designs[s % len(designs)]
             if traj:
                 df = DL.synthesize_trajectory(truth, TRAJECTORY_DESIGNS[dname], position_noise_mm, 100.0, 10_000 + s)
+                df, glitched = with_glitches(df, glitch_frames, s)
             else:
                 df = DL.synthesize_progression(truth, DESIGNS[dname], NOISE, replicates, 10_000 + s)
             path = tmp / f"null_{s}_synthetic.csv"
@@ -107,6 +119,8 @@ def run(seeds: int, effort: str, candidates: list[str] | None, out: str | None, 
             rows.append({"seed": s, "design": dname, "outcome": v["outcome"], "missing_effect": v["missing_effect"],
                          "covariate": v["covariate"], "noise_sd": r["noise"]["sd"],
                          "cv_rmse": r["model_as_is"]["cv_rmse"], "seconds": time.perf_counter() - t1})
+            if traj and glitch_frames:
+                rows[-1] |= {"glitched_rows": glitched, "flagged_rows": sorted(o["row"] for o in r["outliers"])}
             print(f"seed {s} ({dname}): {v['outcome']} {v['missing_effect'] or v['covariate'] or ''}", flush=True)
             outcomes = Counter(x["outcome"] for x in rows)
             findings = sum(x["outcome"] in ("missing_effect", "not_built_in") for x in rows)
@@ -120,6 +134,7 @@ def run(seeds: int, effort: str, candidates: list[str] | None, out: str | None, 
                     "candidates": candidates or "all applicable"}
             if traj:
                 what |= {"position_noise_sd_mm": position_noise_mm, "frame_rate_Hz": 100.0,
+                         "glitch_frames": glitch_frames,
                          "designs": {k: TRAJECTORY_DESIGNS[k].to_dict(orient="list") for k in designs}}
             else:
                 what |= {"noise_sd_mm_s": NOISE, "replicates": replicates, "protocol": PROTO | {"start": start},
@@ -151,6 +166,8 @@ def main() -> None:
                          f"or {sorted(TRAJECTORY_DESIGNS)} (trajectory; default runs3,runs4)")
     ap.add_argument("--position-noise-mm", type=float, default=POS_NOISE,
                     help=f"trajectories: generating position noise SD [mm] (default {POS_NOISE:g})")
+    ap.add_argument("--glitch-frames", type=int, default=0,
+                    help="trajectories: frames of each data set moved by 2-5 mm (a tracker's errors; default 0)")
     ap.add_argument("--out", default=None, help="result JSON (default benchmarks/dynamics_loop_calibration_result.json, "
                                                 "_trajectory_result.json for --kind trajectory)")
     a = ap.parse_args()
@@ -160,9 +177,12 @@ def main() -> None:
     designs = tuple(d for d in (a.designs or ",".join(default)).split(",") if d)
     if not designs or any(d not in table for d in designs):
         ap.error(f"--designs: choose from {sorted(table)}")
-    out = a.out or str(ROOT / "benchmarks" / ("dynamics_loop_calibration_trajectory_result.json"
-                                              if a.kind == "trajectory" else "dynamics_loop_calibration_result.json"))
-    run(a.seeds, a.effort, cands, out, a.first_seed, a.replicates, a.protocol, designs, a.kind, a.position_noise_mm)
+    traj_out = ("dynamics_loop_calibration_trajectory_glitch_result.json" if a.glitch_frames
+                else "dynamics_loop_calibration_trajectory_result.json")
+    out = a.out or str(ROOT / "benchmarks" / (traj_out if a.kind == "trajectory"
+                                              else "dynamics_loop_calibration_result.json"))
+    run(a.seeds, a.effort, cands, out, a.first_seed, a.replicates, a.protocol, designs, a.kind, a.position_noise_mm,
+        a.glitch_frames)
 
 
 if __name__ == "__main__":
