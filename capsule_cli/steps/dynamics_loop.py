@@ -332,7 +332,7 @@ class DynBound(FreeParams):
                 groups.append(gi)
                 factor.append(drift_noise_factor(d["time_s"].to_numpy(float), self.run_drive[r][0]))
         self.rows = rows
-        self._by_position = np.array([mode == "position" for mode, _, _ in rows], bool)
+        self._by_position = frames_by_position(rows)
         # per row: its run, and the frame time in drive periods (inf for an average-velocity row)
         self._row_run = np.array([r for _, r, _ in rows], dtype=object)
         t = self.df["time_s"].to_numpy(float)[[i for _, _, i in rows]] if rows else np.zeros(0)
@@ -1525,7 +1525,7 @@ def trajectory_noise(noise: dict, evs: Sequence[DynEvaluation]) -> dict:
     generating 0.05 mm in the tests); without replicates the residuals of the most flexible fitted model
     are the other bound. Both are upper bounds of the noise; the smaller is used and the method says which.
     """
-    pos = np.array([m == "position" for m, _, _ in evs[0].bound.rows])
+    pos = frames_by_position(evs[0].bound.rows)
     evs = simulated_everywhere(evs)
     if not evs:
         return noise
@@ -1580,6 +1580,12 @@ def serial_noise(rf: pd.DataFrame, evs: Sequence[DynEvaluation], z) -> dict | No
         return None
     best = min(evs, key=lambda e: float(np.sum(np.nan_to_num(z(e)) ** 2)))
     return serial_correlation(rf, np.nan_to_num(z(best)), cols)
+
+
+def frames_by_position(rows: Sequence[tuple]) -> np.ndarray:
+    """Return the mask of a trajectory's comparison rows (``DynBound.rows``: mode, run, table row) that are frames
+    compared by position (not a run's average-velocity row)."""
+    return np.array([mode == "position" for mode, _, _ in rows], bool)
 
 
 def position_rows(rf: pd.DataFrame) -> np.ndarray:
@@ -1819,7 +1825,7 @@ def flaggable(ev: DynEvaluation, s: float) -> np.ndarray:
         can &= ~np.asarray(ev.sim["knife_edge"], bool)
     if ev.bound.kind == "trajectory":
         # a frame compared by position (a tracking error is a frame's); a run's drift rate holds all its frames
-        can &= np.array([mode == "position" for mode, _, _ in ev.bound.rows], bool)
+        can &= frames_by_position(ev.bound.rows)
     return can
 
 
