@@ -1918,8 +1918,10 @@ def drift_frame_outliers(fits: Sequence[tuple[float, DynEvaluation]], best: DynE
     the 24 Hz run 3.7 mm off, a frequency probe fitted best and put the frames around T 1.7 mm off its path
     (z 8); the model as is, with a shift at the first frame, accounts for them."""
     b = best.bound
+    if b.kind != "trajectory":
+        return []
     runs = [(r, d) for r, d in getattr(b, "runs", ()) if b.modes[r] != "position"]
-    if b.kind != "trajectory" or not runs:
+    if not runs:
         return []
     keep = frames_by_position(b.rows)
     keep[list(flagged)] = False
