@@ -394,14 +394,17 @@ def dynamics_residual_figure(frames: pd.DataFrame, xcols: list[str], rcol: str, 
         axd = fig.add_subplot(top[0, len(xcols)])
         runs = drift["run"].astype(str).to_list()
         axd.errorbar(range(len(runs)), drift[rcol].to_numpy(float), yerr=drift["sd"].to_numpy(float), fmt="D",
-                     ms=4, mfc="none", color=OKABE_ITO[1], capsize=2, label="± SD of the drift")
+                     ms=4, mfc="none", color=OKABE_ITO[1], capsize=2)
         axd.axhline(0.0, color="0.6", lw=0.8)
         axd.set_xticks(range(len(runs)), runs, fontsize=6)
         axd.set_xlim(-0.6, len(runs) - 0.4)
+        # about zero: a drift is read against no drift at all
+        reach = float(np.nanmax(np.abs(drift[rcol].to_numpy(float)) + np.nan_to_num(drift["sd"].to_numpy(float))))
+        if reach > 0 and np.isfinite(reach):
+            axd.set_ylim(-1.35 * reach, 1.35 * reach)
         axd.set_xlabel("run (irregular)")
         axd.set_ylabel(label("drift residual over whole periods", unit))
-        axd.set_title("irregular runs: drift")
-        axd.legend(loc="best", fontsize=6)
+        axd.set_title("irregular runs: drift ± SD")  # in the title: a legend sat on a run's bar
     if rows == 2:
         bottom = outer[1].subgridspec(1, len(run_cols))
         for j, xcol in enumerate(run_cols):
