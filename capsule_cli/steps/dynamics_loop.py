@@ -3470,8 +3470,8 @@ def _gathered_words(outliers: Sequence[dict]) -> str:
 
 
 def _frame_words(o: Mapping, end: str = "") -> str:
-    """Return 'run r2, t = 0.4 s' + ``end`` for a trajectory frame's record (where to look in the video), else
-    ''."""
+    """Return 'run r2, t = 0.4 s' + ``end`` for a trajectory frame's record (where to look in the video; with ', an
+    end of its drift' for a frame a run compared by its average velocity takes its drift from), else ''."""
     if "run" not in o or "time_s" not in o:
         return ""
     return f"run {o['run']}, t = {o['time_s']:g} s" + (", an end of its drift" if o.get("drift_frame") else "") + end
