@@ -1891,6 +1891,13 @@ def fit_outlier_rows(ev: DynEvaluation) -> tuple[list[int], dict[int, float], fl
     return out, {i: abs(float(e[i])) / sd if sd > 0 else math.inf for i in out}, sd, outlier_threshold(n, dof=dof)
 
 
+def rows_chi2(ev: DynEvaluation, resid: np.ndarray, sd: float, keep: np.ndarray) -> float:
+    """Return sum over the comparison rows ``keep`` (a mask) of resid^2 / row variance (:func:`row_variance` of
+    ``ev``'s simulation at noise SD ``sd``): the chi-square the outlier tests compare models tried with."""
+    var = np.broadcast_to(row_variance(sd, ev.sim), ev.y.shape)
+    return float(np.sum(np.nan_to_num(np.asarray(resid, float)[keep]) ** 2 / var[keep]))
+
+
 def drift_frame_outliers(fits: Sequence[tuple[float, DynEvaluation]], best: DynEvaluation, flagged: Sequence[int]
                          ) -> list[dict]:
     """Return the frames that a trajectory run compared by its average velocity takes its drift from and that no
@@ -1930,12 +1937,13 @@ def drift_frame_outliers(fits: Sequence[tuple[float, DynEvaluation]], best: DynE
         return []
     thr = outlier_threshold(len(b.df), dof=dof)
     drift_row = {r: j for j, (mode, r, _) in enumerate(b.rows) if mode == "average_velocity"}
+    table = dict(runs)
     paths: dict = {}
 
     def z_at(ev, run):  # (residual [mm], z) at the run's frames under ev's path from rest
         key = (id(ev), run)
         if key not in paths:
-            d = dict(b.runs)[run]
+            d = table[run]
             t = d["time_s"].to_numpy(float)
             path, sp = ev.bound.path_and_spread(ev.theta, run)
             o = np.argsort(t, kind="stable")
@@ -1958,7 +1966,7 @@ def drift_frame_outliers(fits: Sequence[tuple[float, DynEvaluation]], best: DynE
     rows_kept[list(flagged)] = False
 
     def chi2(ev, shifted):  # comparison rows not flagged, drift rows without the shifted frames' terms
-        r = np.nan_to_num(ev.resid, nan=np.inf).astype(float)
+        r = np.array(ev.resid, float)
         extra = 0.0
         for run, j in hits:
             res, z = z_at(ev, run)
@@ -1966,8 +1974,7 @@ def drift_frame_outliers(fits: Sequence[tuple[float, DynEvaluation]], best: DynE
                 r[drift_row[run]] -= weight[run][j] * res[j]
             else:
                 extra += float(z[j]) ** 2
-        var = np.broadcast_to(row_variance(sd, ev.sim), ev.y.shape)
-        return float(np.sum(r[rows_kept] ** 2 / var[rows_kept])) + extra
+        return rows_chi2(ev, r, sd, rows_kept) + extra
 
     n_shift = len(flagged) + len(hits)
     with_shifts = chi2(best, set(hits)) + 2 * (best.k + n_shift)
@@ -1977,7 +1984,7 @@ def drift_frame_outliers(fits: Sequence[tuple[float, DynEvaluation]], best: DynE
         if any(chi2(e, set(hits) - {(run, j)}) + 2 * (e.k + n_shift - 1) <= with_shifts for e in others):
             continue  # another model tried accounts for it
         res, z = z_at(best, run)
-        out.append({"row": int(dict(b.runs)[run].index[j]), "z": float(z[j]), "threshold": thr,
+        out.append({"row": int(table[run].index[j]), "z": float(z[j]), "threshold": thr,
                     "model": _model_label(best), "residual": float(res[j]), "drift_frame": True})
     return out
 
@@ -2234,8 +2241,7 @@ def outlier_rows(evs: Sequence[DynEvaluation], covariates: Mapping[str, np.ndarr
     clean[rows] = False
 
     def chi2(ev, keep):
-        var = np.broadcast_to(row_variance(sd, ev.sim), ev.y.shape)
-        return float(np.sum(np.nan_to_num(ev.resid[keep]) ** 2 / var[keep]))
+        return rows_chi2(ev, ev.resid, sd, keep)
 
     shifted = chi2(best, clean) + 2 * (best.k + len(rows))
     out = []
