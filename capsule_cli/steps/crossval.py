@@ -65,11 +65,8 @@ def cv_rmse_se_few_groups(sq_err: np.ndarray, groups: np.ndarray) -> tuple[float
     0.2 mm), held out 0.242 mm, has a standard error of 0.0073 mm counted by frame and 0.038 clustered by run.
     The clustered error has only groups - 1 degrees of freedom (compare with a t quantile: Cameron & Miller 2015,
     J. Human Resources 50, 317, section VI)."""
-    g = np.asarray(groups)
-    G = np.unique(g).size
-    if G >= 8 or G < 2 or G == g.size:
-        return None
-    return _rmse_se(sq_err, g, always=True)[1], G - 1
+    dof = few_groups(groups)
+    return None if dof is None else (_rmse_se(sq_err, np.asarray(groups), always=True)[1], dof)
 
 
 def _rmse_se(sq_err: np.ndarray, groups: np.ndarray, always: bool = False) -> tuple[float, float]:
@@ -84,9 +81,19 @@ def cv_rmse(sq_err: np.ndarray, groups: np.ndarray) -> tuple[float, float]:
     return _rmse_se(sq_err, groups)
 
 
-def paired_difference(sq_a: np.ndarray, sq_b: np.ndarray, groups: np.ndarray) -> tuple[float, float]:
-    """Return (RMSE_a - RMSE_b, its standard error) from paired per-point held-out squared errors."""
+def paired_difference(sq_a: np.ndarray, sq_b: np.ndarray, groups: np.ndarray, always: bool = False
+                      ) -> tuple[float, float]:
+    """Return (RMSE_a - RMSE_b, its standard error) from paired per-point held-out squared errors (clustered by
+    group as :func:`_mean_se`; ``always``: by group however few)."""
     ra = math.sqrt(float(np.mean(sq_a)))
     rb = math.sqrt(float(np.mean(sq_b)))
-    _, se = _mean_se(np.asarray(sq_a) - np.asarray(sq_b), groups)
+    _, se = _mean_se(np.asarray(sq_a) - np.asarray(sq_b), groups, always)
     return ra - rb, (se / (ra + rb) if ra + rb > 0 else float("nan"))
+
+
+def few_groups(groups: np.ndarray) -> int | None:
+    """Return groups - 1 (the degrees of freedom of a standard error clustered by group) when there are fewer than
+    8 groups of several rows each, where :func:`_mean_se` counts rows as independent, else None."""
+    g = np.asarray(groups)
+    G = np.unique(g).size
+    return None if G >= 8 or G < 2 or G == g.size else G - 1
