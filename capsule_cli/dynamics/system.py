@@ -22,7 +22,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..config import load_param_set
-from ..errors import InputError
+from ..errors import InputError, PluginError
 from . import engine as E
 from .model import (BASE_PARAM_SETS, MODEL_PARAM_NAMES, STEADY_SETTLE_TOL, CapsuleModel, Drive, EngineOptions,
                     Friction, friction_preset, pack_params)
@@ -190,15 +190,22 @@ def build_system(base: str, params: Mapping[str, float], effects: Sequence[str] 
 def transform_drive(system: DynSystem, f_Hz: float, Pd_N: float, duty: float) -> tuple[float, float, float]:
     """Apply the system's plugin drive transforms to one condition (f [Hz], P_d [N], duty [-]).
 
-    A transform that raises or returns anything but three finite numbers is bad input (one line).
+    A transform that raises or returns anything but three finite numbers is bad input (one line); one that
+    raises anything but an arithmetic error or ValueError (a fault of its code, such as a KeyError for a
+    parameter key) is a :class:`PluginError`, which the dynamics loop never takes for a region of the parameters
+    the model cannot run in.
     """
     for eff, p in system.drive_transforms:
         try:
             out = eff.apply(float(f_Hz), float(Pd_N), float(duty), dict(p))
             f_Hz, Pd_N, duty = (float(v) for v in out)
         except Exception as exc:  # noqa: BLE001  (a plugin failing at run time is the user's input, exit 2)
-            raise InputError(f"drive transform '{eff.name}' ({eff.origin}) failed at f = {f_Hz:g} Hz, "
-                             f"Pd = {Pd_N:g} N: {type(exc).__name__}: {exc}") from None
+            # an arithmetic failure may be the parameters' (a region the model cannot run in); any other is the
+            # plugin's code (PluginError: never taken for a region of the parameters)
+            err = InputError if isinstance(exc, (ArithmeticError, ValueError)) else PluginError
+            keys = f" (p holds {', '.join(map(repr, p)) or 'no keys'})" if isinstance(exc, KeyError) else ""
+            raise err(f"drive transform '{eff.name}' ({eff.origin}) failed at f = {f_Hz:g} Hz, "
+                      f"Pd = {Pd_N:g} N: {type(exc).__name__}: {exc}{keys}") from None
         if not all(math.isfinite(v) for v in (f_Hz, Pd_N, duty)):
             raise InputError(f"drive transform '{eff.name}' ({eff.origin}) returned a non-finite drive "
                              f"(f = {f_Hz}, Pd = {Pd_N}, duty = {duty})")
