@@ -79,16 +79,35 @@ def test_collinear_time_and_position_are_named_together():
 
 
 def test_stribeck_plus_power_law_goes_step_by_step(tmp_path):
+    """Two effects hidden: the first diagnose names a partial step, and diagnose --write-model run again adds
+    the missing effects one at a time until both are in the model, each step lowering the held-out error.
+
+    At noise seed 0 the first step cannot tell a viscous term from the power law it is a special case of (the
+    power law fitted at n = 1.57, nested F test p = 0.08, held out 1.37 against 1.41 mN): the viscous term is
+    named, the power law not separable; then the Stribeck drop (held out 1.03), then the power law (0.914, the
+    noise 0.83). Before the nested rule asked for a held-out error lower by 2 standard errors, the 0.04 mN named
+    the power law first and the loop took two steps."""
     truth = fr(["stribeck", "speed_power_law"], stribeck_mN=8, stribeck_speed_mm_s=0.8, a_mN=8.778, n=0.25)
     r, _ = loop(tmp_path, truth, COULOMB_FREE, {"speed_mm_s": SP}, 1.0, 3, seed=0)
     v = r["verdict"]
     assert v["outcome"] == "missing_effect" and v["partial"] and v["message"].startswith("partial step")
-    assert v["missing_effect"] in ("speed_power_law", "stribeck")
+    assert v["missing_effect"] in ("speed_power_law", "stribeck", "viscous")
+    if v["missing_effect"] == "viscous":  # the power law contains it: named with it as not separable
+        assert "speed_power_law" in v["alternatives"] and "not separable" in v["message"]
     d, k = read_measurements(tmp_path / "d_synthetic.csv")
-    r2 = run_diagnose(build_model(tmp_path / "new.yaml"), d, k, str(tmp_path / "d_synthetic.csv"), tmp_path / "d2",
-                      None, figures=False)
-    assert {v["missing_effect"], r2["verdict"]["missing_effect"]} == {"speed_power_law", "stribeck"}
-    assert r2["model_as_is"]["cv_rmse"] < r["model_as_is"]["cv_rmse"]
+    named, model, cv = [v["missing_effect"]], tmp_path / "new.yaml", [r["model_as_is"]["cv_rmse"]]
+    for step in range(2, 4):
+        if {"speed_power_law", "stribeck"} <= set(named):
+            break
+        out = tmp_path / f"new{step}.yaml"
+        rs = run_diagnose(build_model(model), d, k, str(tmp_path / "d_synthetic.csv"), tmp_path / f"d{step}",
+                          str(out), figures=False)
+        cv.append(rs["model_as_is"]["cv_rmse"])
+        assert rs["verdict"]["outcome"] == "missing_effect", rs["verdict"]["message"]
+        named.append(rs["verdict"]["missing_effect"])
+        model = out
+    assert {"speed_power_law", "stribeck"} <= set(named) and len(set(named)) == len(named), named
+    assert all(b < a for a, b in zip(cv, cv[1:])), cv
 
 
 def test_folds_of_two_heights_seed000_case2(tmp_path):
