@@ -59,6 +59,9 @@ def test_hidden_effect_is_named_among_all_candidates(tmp_path_factory, effect, p
     v = r["verdict"]
     assert sorted(r["candidates_tried"]) == sorted(h[0] for h in HIDDEN)
     assert v["outcome"] == "missing_effect" and v["missing_effect"] == effect, v["message"]
+    # candidates the data cannot tell from the one named are listed in diagnosis.json as in the message
+    assert ("not separable by these data" in v["message"]) == bool(v["alternatives"]), v["message"]
+    assert all(a in v["message"] and a != effect for a in v["alternatives"])
     # the model as is misses it by more than the noise: the test has something to find
     assert r["model_as_is"]["cv_rmse"] > 2 * NOISE
 

@@ -2160,8 +2160,8 @@ def scattered_verdict(verdict: dict, noise: Mapping, evs: Sequence[DynEvaluation
     else:
         msg = f"an effect that is not built in acts at {cov} = {val:g}: {words}"
         out = {"outcome": "not_built_in", "covariate": cov}
-    return {**verdict, **out, "missing_effect": None, "partial": False, "message": msg, "scattered": at,
-            "measure_where": {"covariate": cov, "from": val, "to": val}}
+    return {**verdict, **out, "missing_effect": None, "alternatives": [], "partial": False, "message": msg,
+            "scattered": at, "measure_where": {"covariate": cov, "from": val, "to": val}}
 
 
 def scattered_caveat(verdict: dict, evs: Sequence[DynEvaluation], covariates: Mapping[str, np.ndarray],
@@ -2654,7 +2654,7 @@ def dynamics_verdict(base: DynEvaluation, cands: Sequence[dict], noise: dict, si
                 f"{'the model as is' if rests is base else v.missing_effect} ({dom['cv_rmse']:.3g} {unit}; "
                 f"{dom['cv_rmse_without']:.3g} {unit} without it): {dominant_cause(dom, what_g, sigma, unit)}")
     return {"outcome": v.outcome, "missing_effect": v.missing_effect, "covariate": v.covariate, "regime": regime,
-            "dominant_group": dom,
+            "alternatives": list(v.alternatives), "dominant_group": dom,
             "period": v.period, "partial": v.partial, "closest": v.closest,
             "more_measurements": v.more_measurements, "measure_where": v.where, "confounded": v.confounded,
             "message": msg, "where": where}
@@ -3139,8 +3139,8 @@ def probe_verdict(base: DynEvaluation, cands: Sequence[dict], probes: Sequence[d
     where = verdict.get("where")
     if where:
         msg += f". Where the model as is fails: {where}"
-    return {**verdict, **out, "missing_effect": None, "partial": False, "closest": closest, "message": msg,
-            "probe": win["effect"].name}
+    return {**verdict, **out, "missing_effect": None, "alternatives": [], "partial": False, "closest": closest,
+            "message": msg, "probe": win["effect"].name}
 
 
 def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_model=None, k_folds: int = 5,
@@ -3450,7 +3450,7 @@ def _effect_at_value(verdict: dict, words: str, others: str, cov: str, val: floa
     else:
         msg = f"an effect that is not built in acts at {cov} = {val:g}: {words}; {rest}"
         out = {"outcome": "not_built_in", "covariate": cov}
-    return {**verdict, **out, **keep, "missing_effect": None, "partial": False, "message": msg,
+    return {**verdict, **out, **keep, "missing_effect": None, "alternatives": [], "partial": False, "message": msg,
             "measure_where": {"covariate": cov, "from": val, "to": val}}
 
 
