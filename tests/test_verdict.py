@@ -321,3 +321,27 @@ def test_a_held_out_excess_over_few_runs_is_weighed_by_run_not_by_row():
     expect, se, z, over = winner_excess(one_missed, many, noise, groups.size, 3, 5)
     assert z == EXCESS_Z and over == ""
     assert se == pytest.approx(np.hypot(crossval.cv_rmse(one_missed, many)[1], noise.se * expect / noise.sd))
+
+
+def test_a_richer_candidate_held_out_lower_by_two_standard_errors_is_named_and_the_message_says_why():
+    """Its extra parameter does not pass the nested F test (in-sample RSS 15 % lower: p = 0.07), but its
+    held-out squared errors are half the simpler one's at every row: named, the simpler one not separable, and
+    the message gives that reason, not the F test's."""
+    y = 8 + 1.0 * X + np.random.default_rng(3).standard_normal(N)
+    base = fit("", y, np.full(N, y.mean()), 1, sq_scale=1.1)
+    line = np.polyval(np.polyfit(X, y, 1), X)
+    visc = FitSummary("viscous", 2, float((y - line) @ (y - line)), line, (y - line) ** 2 * 1.1, ("speed_mm_s",))
+    r = (y - line) * np.sqrt(0.85)
+    power = FitSummary("speed_power_law", 3, float(r @ r), y - r, (y - line) ** 2 * 0.55, ("speed_mm_s",),
+                       nests=(("viscous", "n = 1, c = a"),))
+    p = nested_f_test(visc.rss, 2, power.rss, 3, N)[1]
+    assert 0.05 < p < 0.5 and aicc(power.rss, N, 3) < aicc(visc.rss, N, 2)
+    assert held_out_lower(power, visc, GROUPS)[0]
+    v = decide_verdict(y, base, [visc, power], NOISE, {"speed_mm_s": X}, [], GROUPS, 5)
+    assert v.missing_effect == "speed_power_law" and v.alternatives == ["viscous"]
+    assert "lowers the held-out error by more than 2 standard errors" in v.message
+    # the same fits with held-out errors lower by any amount but not by 2 standard errors: the simpler is named
+    power.sq_err = np.random.default_rng(0).permutation(visc.sq_err) * 0.99  # the same errors, other rows
+    assert not held_out_lower(power, visc, GROUPS)[0] and power.cv_rmse < visc.cv_rmse
+    v = decide_verdict(y, base, [visc, power], NOISE, {"speed_mm_s": X}, [], GROUPS, 5)
+    assert v.missing_effect == "viscous" and v.alternatives == ["speed_power_law"]

@@ -301,7 +301,8 @@ def rank_supported(y: np.ndarray, sup: Sequence[FitSummary], alpha: float = ALPH
 
     ``how``: {"rule": "aicc" | "nested" (the simpler one named over the richer), "richer": name, "at": the
     setting where the richer reduces to the one named, "p": F test p, "nested": {name of each other candidate
-    in a nested pair with the one named: {"p": F test p, "at": the setting, "named_is_richer": bool}}}.
+    in a nested pair with the one named: {"p": F test p, "at": the setting, "named_is_richer": bool,
+    "held_out_lower": the one named is richer and held out lower by NESTED_CV_Z standard errors}}}.
     """
     y = np.asarray(y, float)
     n = y.size
@@ -353,7 +354,8 @@ def rank_supported(y: np.ndarray, sup: Sequence[FitSummary], alpha: float = ALPH
         if is_nested(win, c):
             richer = nested_in(win, c) is not None
             p = f_p(win, c) if richer else f_p(c, win)
-            how["nested"][c.name] = {"p": p, "at": nested_in(win, c) or nested_in(c, win), "named_is_richer": richer}
+            how["nested"][c.name] = {"p": p, "at": nested_in(win, c) or nested_in(c, win), "named_is_richer": richer,
+                                     "held_out_lower": richer and held_out_lower(win, c, grp)[0]}
             if p >= alpha_nested:
                 alts.append((c, p))
         else:
@@ -733,9 +735,10 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
                         f"more than {NESTED_CV_Z:g} standard errors")
                 why = f"{win.name}, the simpler, is named"
             elif first.name in how["nested"] and how["nested"][first.name]["named_is_richer"]:
+                gain = (f"{win.name} lowers the held-out error by more than {NESTED_CV_Z:g} standard errors"
+                        if how["nested"][first.name]["held_out_lower"] else f"{first.name} ends at a bound")
                 test = (f"{win.name} contains {first.name} ({how['nested'][first.name]['at']}): nested F test "
-                        f"p = {_g(alts[0][1])} >= {ALPHA_EFFECT:g}, but {win.name} lowers the held-out error by "
-                        f"more than {NESTED_CV_Z:g} standard errors")
+                        f"p = {_g(alts[0][1])} >= {ALPHA_EFFECT:g}, but {gain}")
                 why = f"{win.name} is named first by penalised fit (AICc)"
             elif first.name in how["nested"]:
                 test = (f"{first.name} contains {win.name} ({how['nested'][first.name]['at']}) and does not fit "
