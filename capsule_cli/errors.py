@@ -11,9 +11,11 @@ class InputError(Exception):
     exit_code = 2
 
 
-class PluginError(InputError):
+class PluginError(Exception):
     """A user's plugin function failed by a fault of its own code (a KeyError for a parameter key, a TypeError,
-    a NameError), not by an arithmetic failure at some parameter values: exit code 2, one line. The dynamics
-    loop takes a run that fails for a parameter value as a region the model cannot run in (a large cost, the
-    search goes elsewhere); this one it never swallows, so a plugin with a bug is reported, not silently lost
-    as a candidate."""
+    a NameError), not by an arithmetic failure at some parameter values: exit code 2, one line, as an
+    :class:`InputError`. Not a subclass of it on purpose: the dynamics loop takes an InputError during a run as
+    a region of the parameters the model cannot run in (a large cost, the search goes elsewhere) and must never
+    swallow this one, so that a plugin with a bug is reported, not silently lost as a candidate."""
+
+    exit_code = 2

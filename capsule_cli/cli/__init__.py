@@ -12,7 +12,7 @@ import traceback
 import typer
 
 from .. import __version__
-from ..errors import InputError
+from ..errors import InputError, PluginError
 
 app = typer.Typer(
     name="capsule-cli",
@@ -160,7 +160,7 @@ def _run(command, args: list[str], debug: bool) -> int:
         if code == 130:  # typer turns Ctrl-C into exit code 130
             typer.echo("capsule-cli: interrupted", err=True)
         return code
-    except InputError as exc:
+    except (InputError, PluginError) as exc:
         typer.echo(f"capsule-cli: error: {_one_line(exc)}", err=True)
         return 2
     except KeyboardInterrupt:

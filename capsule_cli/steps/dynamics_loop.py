@@ -67,7 +67,7 @@ from ..dynamics.model import STEADY_SETTLE_TOL, EngineOptions
 from ..effects import registry
 from ..effects.model import FreeParams, Model
 from ..effects.registry import Effect
-from ..errors import InputError, PluginError
+from ..errors import InputError
 from ..fitting import information_criteria
 from ..tables import (Column, TableSchema, is_synthetic, provenance, write_json_atomic, write_measurements,
                       write_table, write_text_atomic)
@@ -419,8 +419,6 @@ class DynBound(FreeParams):
             self.last_batch_s = time.perf_counter() - t0
         except NotImplementedError:
             raise
-        except PluginError:
-            raise
         except (InputError, RuntimeError, ValueError, FloatingPointError) as exc:
             self.last_failure = str(exc)
             ci = self.cond_index
@@ -473,8 +471,6 @@ class DynBound(FreeParams):
                                            duty=du, waveform=wf, protocol=self.protocol, options=self.options,
                                            start_offset_m=off, Pf_N=None if pfs is None else pfs[rep])
                 v.append(out["velocity_mm_s"].to_numpy(float))
-        except PluginError:
-            raise
         except (InputError, RuntimeError, ValueError, FloatingPointError):
             return
         v = np.vstack([v[0]] + [np.reshape(x, (-1, m)) for x in v[1:]])
@@ -523,8 +519,6 @@ class DynBound(FreeParams):
 
             ref = path(0.0)
             return ref, np.max([np.abs(path(x0) - ref) for x0 in START_OFFSETS_M], axis=0)
-        except PluginError:
-            raise
         except (InputError, RuntimeError, ValueError, FloatingPointError):
             return np.full(t.size, np.nan), np.full(t.size, np.inf)
 
@@ -554,8 +548,6 @@ class DynBound(FreeParams):
             sysm = self.system(theta)
             summ = self.run_summary(theta) if classify else {}
         except NotImplementedError:
-            raise
-        except PluginError:
             raise
         except (InputError, RuntimeError, ValueError, FloatingPointError):
             return {"pred": pred, "spread": spread, "cls": cls, "by_position": by_position, "noise_factor": fac}
@@ -589,8 +581,6 @@ class DynBound(FreeParams):
                     if starts:
                         spread[j] = max(spread[j], self._drift_start_sd(self.run_system(sysm, theta, r), r,
                                                                         pred[j]))
-        except PluginError:
-            raise
         except (InputError, RuntimeError, ValueError, FloatingPointError):
             pass  # rows not reached stay NaN (a large penalty in the costs)
         return {"pred": pred, "spread": spread, "cls": cls, "by_position": by_position, "noise_factor": fac}
@@ -619,8 +609,6 @@ class DynBound(FreeParams):
                 tr = dsys.trajectory(sysm, f, pdn, t, duty=duty, waveform=wf, options=self.options,
                                      start_offset_m=x0)
                 v.append(run_drift(t, tr[self.response], f)[1])
-        except PluginError:
-            raise
         except (InputError, RuntimeError, ValueError, FloatingPointError):
             return 0.0
         return float(np.std(v, ddof=1) * math.sqrt(1.0 + 1.0 / len(v)))
@@ -3654,8 +3642,6 @@ def drawn_left_out(ev: DynEvaluation, left_out: Sequence[dict]) -> list[dict]:
             alone = DynBound(b.model, pd.DataFrame([{c: o[c] for c in cols} for o in left_out]), where=b.where,
                              rk_rtol=None if b.options is None else b.options.rk_rtol)
             pred = alone.simulate(ev.theta, classify=False)["pred"]
-        except PluginError:
-            raise
         except (InputError, RuntimeError, ValueError, FloatingPointError, KeyError):
             return list(left_out)
         return [{**o, "residual": float(o[b.response]) - float(p)} if math.isfinite(p) else o
@@ -3668,8 +3654,6 @@ def drawn_left_out(ev: DynEvaluation, left_out: Sequence[dict]) -> list[dict]:
         if key in runs and "time_s" in o and b.response in o:
             try:
                 pred = float(b.positions_mm(ev.theta, runs[key], [float(o["time_s"])])[0])
-            except PluginError:
-                raise
             except (InputError, RuntimeError, ValueError, FloatingPointError):
                 pred = math.nan
             if math.isfinite(pred):

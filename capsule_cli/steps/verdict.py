@@ -325,6 +325,13 @@ def rank_supported(y: np.ndarray, sup: Sequence[FitSummary], alpha: float = ALPH
         return float(p) if np.isfinite(p) else 1.0
 
     grp = np.arange(n) if groups is None else np.asarray(groups)
+    lower: dict = {}
+
+    def held_out_lower_(rich: FitSummary, simple: FitSummary) -> bool:  # each pair computed once
+        key = (id(rich), id(simple))
+        if key not in lower:
+            lower[key] = held_out_lower(rich, simple, grp)[0]
+        return lower[key]
 
     def is_nested(a: FitSummary, b: FitSummary) -> bool:
         return nested_in(a, b) is not None or nested_in(b, a) is not None
@@ -343,7 +350,7 @@ def rank_supported(y: np.ndarray, sup: Sequence[FitSummary], alpha: float = ALPH
         if c is win or (bool(c.at_bound) and not win.at_bound) or nested_in(win, c) is None:
             continue
         p = f_p(win, c)
-        if p >= alpha_nested and not held_out_lower(win, c, grp)[0]:
+        if p >= alpha_nested and not held_out_lower_(win, c):
             # the richer one's extra parameters buy nothing, in-sample or held out: the simpler one
             how = {"rule": "nested", "richer": win.name, "at": nested_in(win, c), "p": p}
             win = c
@@ -355,7 +362,7 @@ def rank_supported(y: np.ndarray, sup: Sequence[FitSummary], alpha: float = ALPH
             richer = nested_in(win, c) is not None
             p = f_p(win, c) if richer else f_p(c, win)
             how["nested"][c.name] = {"p": p, "at": nested_in(win, c) or nested_in(c, win), "named_is_richer": richer,
-                                     "held_out_lower": richer and held_out_lower(win, c, grp)[0]}
+                                     "held_out_lower": richer and held_out_lower_(win, c)}
             if p >= alpha_nested:
                 alts.append((c, p))
         else:
