@@ -8,7 +8,7 @@ covariate named, the noise estimate and the held-out RMSE of each candidate.
     trajectory: configs/designs/trajectory_runs.csv (four 1-s runs from rest: 25/0.15, 30/0.15, 35/0.2,
         38/0.2 Hz/N), 100 frames per second, position noise ``--noise`` (default 0.3 mm)
     progression: configs/designs/progression_grid.csv (10 frequencies x 4 amplitudes), one value per condition,
-        protocol rest 120/60 periods, noise 0.5 mm/s
+        protocol rest 120/60 periods (``--protocol up`` or ``down``: continuation in frequency), noise 0.5 mm/s
 
 Cases (``--cases``, default all of the kind): ``null``, each built-in effect at the values in CASES, and (progression
 only) two drive effects that are not built in, written as a user's plugins (a coil low-pass in f_Hz and a saturation
@@ -16,7 +16,12 @@ in P_d_N), where the verdict should name the covariate.
 
 Usage:
     python benchmarks/dynamics_loop_power.py --kind trajectory [--seeds 2] [--cases null,viscous_drag]
-        [--effort full] [--out benchmarks/dynamics_loop_power_trajectory_result.json]
+        [--effort full] [--design RUNS.csv] [--noise 0.5] [--protocol up]
+        [--out benchmarks/dynamics_loop_power_trajectory_result.json]
+
+Recorded per data set besides the verdict: each candidate's held-out RMSE (``cv_rmse``: standardised by the
+noise and, where the response is irregular, the model's spread) and on the rows the fit predicts neither
+irregular nor multistable (``cv_rmse_not_irregular``, plain: issue 12 item 7's measure), and its seconds.
 
 The result JSON is rewritten after every data set. Minutes of CPU per data set (progression 3-8, trajectory 1-3).
 """
@@ -75,28 +80,30 @@ def coil_saturation(f_Hz, Pd_N, duty, p):
 '''
 
 
-def _model(tmp: Path, name: str, kind: str, effects, params) -> object:
+def _model(tmp: Path, name: str, kind: str, effects, params, start: str = "rest") -> object:
     doc = {"kind": kind, "base": "one_sided", "effects": list(effects), "params": params}
     if kind == "progression":
-        doc["protocol"] = PROTOCOL
+        doc["protocol"] = {**PROTOCOL, "start": start}
     (tmp / f"{name}.yaml").write_text(yaml.safe_dump(doc))
     return build_model(tmp / f"{name}.yaml")
 
 
-def data_set(tmp: Path, kind: str, case: str, seed: int, noise: float) -> pd.DataFrame:
-    """Return the synthetic table of ``case`` (a plugin case's effect is registered only while it is made)."""
+def data_set(tmp: Path, kind: str, case: str, seed: int, noise: float, design: str | None = None,
+             start: str = "rest") -> pd.DataFrame:
+    """Return the synthetic table of ``case`` (a plugin case's effect is registered only while it is made) on
+    ``design`` (a design CSV; None: the kind's default, above), progression run by protocol ``start``."""
     effects, params = CASES[case]
     plug = tmp / "coil_plugins.py"
     if case in NOT_BUILT_IN:
         plug.write_text(PLUGIN)
         registry.load_plugins([plug], entry_points=False)
     try:
-        truth = _model(tmp, f"truth_{case}", kind, effects, {"Pf_N": PF_N, **params})
+        truth = _model(tmp, f"truth_{case}", kind, effects, {"Pf_N": PF_N, **params}, start)
         if kind == "trajectory":
-            design = pd.read_csv(ROOT / "configs" / "designs" / "trajectory_runs.csv")
-            return DL.synthesize_trajectory(truth, design, noise, 100.0, 1000 + seed)
-        design = pd.read_csv(ROOT / "configs" / "designs" / "progression_grid.csv")
-        return DL.synthesize_progression(truth, design, noise, 1, 2000 + seed)
+            runs = pd.read_csv(design or ROOT / "configs" / "designs" / "trajectory_runs.csv")
+            return DL.synthesize_trajectory(truth, runs, noise, 100.0, 1000 + seed)
+        grid = pd.read_csv(design or ROOT / "configs" / "designs" / "progression_grid.csv")
+        return DL.synthesize_progression(truth, grid, noise, 1, 2000 + seed)
     finally:
         if case in NOT_BUILT_IN:
             for name in NOT_BUILT_IN:
@@ -115,6 +122,9 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=2)
     ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--noise", type=float, default=None, help="trajectory: position noise SD [mm] (default 0.3)")
+    ap.add_argument("--protocol", default="rest", choices=("rest", "up", "down"),
+                    help="progression: how each condition is run (truth and base model file alike)")
+    ap.add_argument("--design", default=None, help="a design CSV (default: the kind's, above)")
     ap.add_argument("--effort", default="full", choices=sorted(DL.EFFORTS))
     ap.add_argument("--out", default=None)
     a = ap.parse_args()
@@ -127,10 +137,11 @@ def main() -> None:
     rows, t0 = [], time.perf_counter()
     with tempfile.TemporaryDirectory() as tmpd:
         tmp = Path(tmpd)
-        base = _model(tmp, "base", a.kind, [], {"Pf_N": {"value": PF_N, "free": True, "bounds": [0.0, 0.5]}})
+        base = _model(tmp, "base", a.kind, [], {"Pf_N": {"value": PF_N, "free": True, "bounds": [0.0, 0.5]}},
+                      a.protocol)
         for seed in range(a.first_seed, a.first_seed + a.seeds):
             for case in cases:
-                df = data_set(tmp, a.kind, case, seed, noise)
+                df = data_set(tmp, a.kind, case, seed, noise, a.design, a.protocol)
                 path = tmp / f"{case}_{seed}_synthetic.csv"
                 df.to_csv(path, index=False)
                 t1 = time.perf_counter()
@@ -144,10 +155,17 @@ def main() -> None:
                              "alternatives": v.get("alternatives", []), "right": said == expected(case),
                              "noise_sd": r["noise"]["sd"], "cv_rmse_as_is": r["model_as_is"]["cv_rmse"],
                              "cv_rmse": {c["effect"]: c["cv_rmse"] for c in r.get("candidates", [])},
+                             "cv_rmse_not_irregular": {c["effect"]: c["cv_rmse_not_irregular"]
+                                                       for c in r.get("candidates", [])},
+                             "candidate_seconds": {c["effect"]: round(c["seconds"], 1)
+                                                   for c in r.get("candidates", [])},
                              "message": v["message"], "seconds": round(time.perf_counter() - t1, 1)})
                 print(f"{case} seed {seed}: {said} ({'right' if rows[-1]['right'] else 'WRONG'})", flush=True)
                 rec = {"what": f"power of the dynamics diagnose on {a.kind} data shaped like issue 12's checks",
-                       "noise": noise, "effort": a.effort, "base_Pf_N": PF_N, "cases": {c: CASES[c] for c in cases},
+                       "design": a.design or "default",
+                       "design_rows": pd.read_csv(a.design).to_dict("records") if a.design else None,
+                       "protocol": a.protocol, "noise": noise, "effort": a.effort, "base_Pf_N": PF_N,
+                       "cases": {c: CASES[c] for c in cases},
                        "data_sets": len(rows), "right": sum(x["right"] for x in rows),
                        "seconds": round(time.perf_counter() - t0, 1), "runs": rows}
                 out.write_text(json.dumps(rec, indent=1, default=str))

@@ -75,9 +75,9 @@ from . import crossval
 from .residual_tests import (OUTLIER_ALPHA, correct_for_correlation, esd_select, is_ordered, max_outliers,
                              noise_estimate, numeric_covariates, outlier_threshold, replicate_groups,
                              serial_correlation, structure_tests)
-from .verdict import (ALPHA_EFFECT, ALPHA_STRUCTURE, COLLINEAR_R, EXCESS_Z, RULE_TEXT, FitSummary, Noise,
-                      collinear_groups, collinear_with, decide_verdict, nested_f_test, noise_expectation, rss_pair,
-                      winner_excess)
+from .verdict import (ALPHA_EFFECT, ALPHA_STRUCTURE, COLLINEAR_R, DESIGN_NOTE_RATIO, EXCESS_Z, RULE_TEXT,
+                      FitSummary, Noise, collinear_groups, collinear_with, decide_verdict, nested_f_test,
+                      noise_expectation, rss_pair, winner_excess)
 
 DYN_KINDS = ("progression", "trajectory")
 #: response classes of dynamics.system.progression (contract section 2, verdict.regime)
@@ -1387,6 +1387,8 @@ def knife_edge_runs(bound: DynBound, y, pred, cv_pred, groups, folds, theta, fol
             continue
         if bound.kind == "trajectory" and not all(bound.rows[j][0] == "position" for j in rows):
             continue
+        if not (np.any(np.isfinite(cv_pred[rows])) and np.any(np.isfinite(pred[rows]))):
+            continue  # the fold's parameters (or the fit's) cannot run it: no held-out error to weigh
         held = float(np.sqrt(np.nanmean((y[rows] - cv_pred[rows]) ** 2)))
         fitted = float(np.sqrt(np.nanmean((y[rows] - pred[rows]) ** 2)))
         rel = np.abs(np.asarray(fold_theta[f], float) - theta) / np.maximum(np.abs(theta), floor)
@@ -1509,10 +1511,19 @@ def above_linear_expectation(ev: DynEvaluation, noise: Noise, named: bool) -> bo
 def with_design_expectation(ev: DynEvaluation, noise: Noise, named: bool, budget: Budget, seed: int
                             ) -> DynEvaluation:
     """Return ``ev`` with ``cv_expected`` measured (:func:`held_out_of_truth`) when it is a trajectory over fewer
-    than 8 runs held out above the linear expectation (:func:`above_linear_expectation`), else ``ev`` itself:
-    only there can the design's expectation, which only ever relaxes the linear one, change what is said."""
-    if (ev.bound.kind != "trajectory" or crossval.cv_rmse_se_few_groups(ev.cv_sq, ev.groups) is None
-            or not above_linear_expectation(ev, noise, named)):
+    than 8 runs held out above the linear expectation (:func:`above_linear_expectation`), or a named effect held
+    out above DESIGN_NOTE_RATIO times the noise SD; else ``ev`` itself. Only there can the design's expectation
+    change what is said: the verdict's test (it only ever relaxes the linear expectation) or, for the effect
+    named, the sentence on why its held-out error stays above the noise. Three 3-s runs (noise 0.5 mm), a speed
+    law hidden and named, fitted at the truth (a 3.05 mN, n 0.598; in-sample RMSE 0.489 mm): held out 0.748 mm,
+    within the linear expectation counted over three runs (t quantile of 2 degrees of freedom) and so without a
+    word on it, though the same model started at the truth is held out at 0.748 too: a run predicted from the
+    other two misses by the parameters' error, growing along its 3 s."""
+    if ev.bound.kind != "trajectory" or crossval.cv_rmse_se_few_groups(ev.cv_sq, ev.groups) is None:
+        return ev
+    above_note = (named and noise.reliable and np.isfinite(noise.sd)
+                  and ev.cv_rmse > DESIGN_NOTE_RATIO * noise.sd)
+    if not (above_note or above_linear_expectation(ev, noise, named)):
         return ev
     return replace(ev, cv_expected=held_out_of_truth(ev, budget, seed))
 

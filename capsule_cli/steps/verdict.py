@@ -810,7 +810,7 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
                 msg += (f". Its held-out RMSE ({_g(win.cv_rmse)} {unit}) is what {win.name} gives as the truth on "
                         f"these runs ({_g(mean)} ± {_g(sd)} {unit}, {draws} draws with the noise), above the noise "
                         f"({_g(noise.sd)} {unit}): held out one at a time, a run is predicted with parameters the "
-                        "other runs do not pin down; more runs (other drives) would")
+                        "other runs do not pin down; more runs (other drives) would pin them down")
         return Verdict("missing_effect", win.name, cov, None, msg, tests=tests, structure_used=left,
                        alternatives=close)
 
