@@ -1152,6 +1152,17 @@ def test_trajectory_residual_figure_has_a_row_of_run_drift_rates_by_drive_and_th
     f_ax = fig.axes[1]
     pts = f_ax.containers[0].lines[0]  # the runs' rates (their error bars' data line)
     assert list(pts.get_xdata()) == list(runs["f_Hz"]) and np.allclose(pts.get_ydata(), per_run["rate_mm_s"])
+    # each run named with its drive right of the frames' panel, joined to where its residual ends (the median of
+    # its last 5 frames), the labels in the order of those ends and at least 7 % of the axis apart
+    texts = fig.axes[0].texts
+    ends = {tx.get_text(): tx.xy for tx in texts}
+    assert sorted(ends) == ["a (30 Hz, 0.08 N)", "b (34 Hz, 0.08 N)", "c (38 Hz, 0.08 N)", "d (30 Hz, 0.1 N)",
+                            "e (34 Hz, 0.1 N)", "f (38 Hz, 0.1 N)"]
+    tail = res.groupby("run")["residual_capsule_mm"].apply(lambda r: np.median(r.to_numpy()[-5:]))
+    assert all(xy == pytest.approx((0.4, tail[k[0]])) for k, xy in ends.items())
+    placed = sorted((tx.xyann[1], tail[tx.get_text()[0]]) for tx in texts)
+    assert [e for _, e in placed] == sorted(tail) and np.all(np.diff([f for f, _ in placed]) >= 0.07 - 1e-12)
+    assert 0.0 <= placed[0][0] and placed[-1][0] <= 1.0
     fig = DL._plot_residuals(res, ev, tmp_path / "r2.png", "test", covariate="f_Hz")
     assert [ax.get_xlabel() for ax in fig.axes][1:] == ["f [Hz] of the run", "Pd [N] of the run"]
     assert (tmp_path / "r2.png").stat().st_size > 0

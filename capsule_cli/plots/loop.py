@@ -337,6 +337,43 @@ def _value_ticks(ax, x) -> None:
         ax.xaxis.set_major_locator(MaxNLocator(5))
 
 
+#: at most this many trajectory runs are named at the end of their line in the position-residual panel (more
+#: would crowd it; each run's drift rate is in the row below by its drive either way)
+RUN_LABELS_MAX = 8
+
+
+def _label_run_ends(ax, frames: pd.DataFrame, xcol: str, rcol: str, gap: float = 0.07) -> None:
+    """Name each run (2 to RUN_LABELS_MAX of them) right of the panel, each joined by a thin line to where its
+    residual ends (the median of its last 5 frames, so one noisy frame does not place it); labels closer
+    than ``gap`` of the axis height are moved apart, keeping the runs' order."""
+    runs = list(frames.groupby("run", sort=False))
+    if not 2 <= len(runs) <= RUN_LABELS_MAX:
+        return
+    lo, hi = ax.get_ylim()
+    ends = []
+    for run, d in runs:
+        tail = d[rcol].to_numpy(float)[-5:]
+        level = float(np.nanmedian(tail)) if np.isfinite(tail).any() else 0.0
+        ends.append((float(d[xcol].iloc[-1]), level, _run_label(run, d)))
+    order = sorted(range(len(ends)), key=lambda i: ends[i][1])
+    frac = [min(max((ends[i][1] - lo) / (hi - lo), 0.0), 1.0) for i in order]
+    for k in range(1, len(frac)):  # upwards, then pulled back below the top as a block
+        frac[k] = max(frac[k], frac[k - 1] + gap)
+    shift = max(0.0, frac[-1] - 1.0)
+    frac = [f - shift for f in frac]
+    for i, f in zip(order, frac):
+        x, y, text = ends[i]
+        ax.annotate(text, (x, y), xytext=(1.01, f), textcoords="axes fraction", fontsize=6, va="center",
+                    color="0.3", annotation_clip=False, arrowprops={"arrowstyle": "-", "color": "0.6", "lw": 0.5})
+
+
+def _run_label(run, d: pd.DataFrame) -> str:
+    """Return a run's label in the residual figure: its name and, when the frames carry them, its drive
+    (f [Hz], P_d [N])."""
+    drive = [f"{d[c].iloc[0]:g} {u}" for c, u in (("f_Hz", "Hz"), ("Pd_N", "N")) if c in d.columns]
+    return f"{run} ({', '.join(drive)})" if drive else str(run)
+
+
 def dynamics_residual_figure(frames: pd.DataFrame, xcols: list[str], rcol: str, unit: str, noise_sd: float,
                              classes: tuple[str, ...], title: str = "", drift: pd.DataFrame | None = None,
                              per_run: pd.DataFrame | None = None, run_cols: tuple[str, ...] = (),
@@ -386,6 +423,8 @@ def dynamics_residual_figure(frames: pd.DataFrame, xcols: list[str], rcol: str, 
             _value_ticks(ax, pd.concat(shown))  # a value whose readings were all left out keeps its tick
         ax.set_xlabel(_nice(xcol))
         ax.set_ylabel(label("position residual" if xcol == "time_s" else "residual", unit))
+        if xcol == "time_s" and "run" in frames.columns:
+            _label_run_ends(ax, frames, xcol, rcol)
         axes.append(ax)
     axes[0].legend(loc="best", fontsize=6)
     if title:
