@@ -342,11 +342,10 @@ def _value_ticks(ax, x) -> None:
 RUN_LABELS_MAX = 8
 
 
-def _label_run_ends(ax, frames: pd.DataFrame, xcol: str, rcol: str, gap: float = 0.07) -> None:
-    """Name each run (2 to RUN_LABELS_MAX of them) right of the panel, each joined by a thin line to where its
-    residual ends (the median of its last 5 frames, so one noisy frame does not place it); labels closer
-    than ``gap`` of the axis height are moved apart, keeping the runs' order."""
-    runs = list(frames.groupby("run", sort=False))
+def _label_run_ends(ax, runs: list, xcol: str, rcol: str, gap: float = 0.07) -> None:
+    """Name each of ``runs`` ((name, frames) pairs; 2 to RUN_LABELS_MAX of them) right of the panel, each joined
+    by a thin line to where its residual ends (the median of its last 5 frames, so one noisy frame does not
+    place it); labels closer than ``gap`` of the axis height are moved apart, keeping the runs' order."""
     if not 2 <= len(runs) <= RUN_LABELS_MAX:
         return
     lo, hi = ax.get_ylim()
@@ -396,6 +395,7 @@ def dynamics_residual_figure(frames: pd.DataFrame, xcols: list[str], rcol: str, 
       those with a ``why`` (readings gathered at one value of a covariate, or the readings at the value where the
       misfit gathered, read as an effect there) as open diamonds labelled with it."""
     colour = _class_colours(classes)
+    runs = list(frames.groupby("run", sort=False)) if "run" in frames.columns else []
     rows = 2 if per_run is not None and run_cols else 1
     ratios = [3] * len(xcols) + ([1] if drift is not None and len(drift) else [])
     wide = len(ratios) > 1 or rows > 1
@@ -407,7 +407,7 @@ def dynamics_residual_figure(frames: pd.DataFrame, xcols: list[str], rcol: str, 
         ax = fig.add_subplot(top[0, j])
         ax.axhspan(-noise_sd, noise_sd, color="0.85", lw=0, zorder=0, label="± noise SD")
         if xcol == "time_s" and "run" in frames.columns:  # each run's frames joined, so a run is followed in time
-            for _, d in frames.groupby("run", sort=False):
+            for _, d in runs:
                 ax.plot(d[xcol], d[rcol], "-", color="0.6", lw=0.5, zorder=1)
         for c in classes:
             m = (frames["response_class"] == c).to_numpy()
@@ -424,7 +424,7 @@ def dynamics_residual_figure(frames: pd.DataFrame, xcols: list[str], rcol: str, 
         ax.set_xlabel(_nice(xcol))
         ax.set_ylabel(label("position residual" if xcol == "time_s" else "residual", unit))
         if xcol == "time_s" and "run" in frames.columns:
-            _label_run_ends(ax, frames, xcol, rcol)
+            _label_run_ends(ax, runs, xcol, rcol)
         axes.append(ax)
     axes[0].legend(loc="best", fontsize=6)
     if title:

@@ -2130,6 +2130,12 @@ def best_fit_level(evs: Sequence[DynEvaluation], covariates: Mapping[str, np.nda
     return None if at is None else {**at, "model": _model_label(best)}
 
 
+def no_effect_named() -> dict:
+    """Return the verdict fields of an outcome that names no built-in effect (a covariate or a value where an
+    effect that is not built in acts): no missing effect, no alternatives to it, not a partial step."""
+    return {"missing_effect": None, "alternatives": [], "partial": False}
+
+
 def scattered_verdict(verdict: dict, noise: Mapping, evs: Sequence[DynEvaluation],
                       covariates: Mapping[str, np.ndarray], unit: str) -> dict:
     """Return the verdict, "nothing is missing" against a noise bounded by a fit's own residual SD (no replicates:
@@ -2159,8 +2165,8 @@ def scattered_verdict(verdict: dict, noise: Mapping, evs: Sequence[DynEvaluation
     else:
         msg = f"an effect that is not built in acts at {cov} = {val:g}: {words}"
         out = {"outcome": "not_built_in", "covariate": cov}
-    return {**verdict, **out, "missing_effect": None, "alternatives": [], "partial": False, "message": msg,
-            "scattered": at, "measure_where": {"covariate": cov, "from": val, "to": val}}
+    return {**verdict, **out, **no_effect_named(), "message": msg, "scattered": at,
+            "measure_where": {"covariate": cov, "from": val, "to": val}}
 
 
 def scattered_caveat(verdict: dict, evs: Sequence[DynEvaluation], covariates: Mapping[str, np.ndarray],
@@ -3138,8 +3144,8 @@ def probe_verdict(base: DynEvaluation, cands: Sequence[dict], probes: Sequence[d
     where = verdict.get("where")
     if where:
         msg += f". Where the model as is fails: {where}"
-    return {**verdict, **out, "missing_effect": None, "alternatives": [], "partial": False, "closest": closest,
-            "message": msg, "probe": win["effect"].name}
+    return {**verdict, **out, **no_effect_named(), "closest": closest, "message": msg,
+            "probe": win["effect"].name}
 
 
 def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_model=None, k_folds: int = 5,
@@ -3449,7 +3455,7 @@ def _effect_at_value(verdict: dict, words: str, others: str, cov: str, val: floa
     else:
         msg = f"an effect that is not built in acts at {cov} = {val:g}: {words}; {rest}"
         out = {"outcome": "not_built_in", "covariate": cov}
-    return {**verdict, **out, **keep, "missing_effect": None, "alternatives": [], "partial": False, "message": msg,
+    return {**verdict, **out, **keep, **no_effect_named(), "message": msg,
             "measure_where": {"covariate": cov, "from": val, "to": val}}
 
 
