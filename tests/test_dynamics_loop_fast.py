@@ -9,6 +9,7 @@ P_f = 0.02 N: no chaos, so the numbers test the rule and the calibration, not lu
 """
 from __future__ import annotations
 
+import math
 from types import SimpleNamespace
 
 import numpy as np
@@ -1080,16 +1081,21 @@ def test_bootstrap_interval_is_the_fit_plus_t_standard_errors_in_box_coordinates
     edge = SimpleNamespace(key="g", bounds=(-1.0, 1.0), param=SimpleNamespace(log_from=None))
     log = SimpleNamespace(key="a_mN", bounds=(0.0, 5000.0), param=SimpleNamespace(log_from=1.0))
     free = [lin, edge, log]
-    bound = SimpleNamespace(free=free, bounds=(np.array([-1.0, -1.0, 0.0]), np.array([1.0, 1.0, 5000.0])))
+    bound = SimpleNamespace(free=free, bounds=(np.array([-1.0, -1.0, 0.0]), np.array([1.0, 1.0, 5000.0])),
+                            kind="progression")
     theta = np.array([0.3, 0.99, 100.0])
     rolloff = np.array([0.29, 0.30, 0.31, 0.30, 0.305])
     g = np.array([0.98, 0.99, 1.0, 0.97, 0.99])
     a = 100.0 * np.exp(np.array([-0.2, 0.1, 0.0, 0.2, -0.1]))  # spread by +-20 %
     draws = iter(np.column_stack([rolloff, g, a]))
     monkeypatch.setattr(DL, "calibrate", lambda *args, **kw: SimpleNamespace(theta=next(draws)))
-    ev = SimpleNamespace(groups=np.repeat(np.arange(6), 3), bound=bound, y=np.zeros(18), sigma=1.0, theta=theta,
-                         fit=SimpleNamespace(weights=None))
-    ci, se = DL.bootstrap_intervals(ev, 5, QUICK, 0)
+    groups = np.repeat(np.arange(6), 3)
+    ev = SimpleNamespace(groups=groups, bound=bound, y=np.zeros(groups.size), sigma=1.0, theta=theta,
+                         fit=SimpleNamespace(weights=None),
+                         sim={"pred": np.zeros(groups.size), "spread": np.zeros(groups.size),
+                              "cls": np.array(["period_1"] * groups.size)})
+    ci, se, how = DL.bootstrap_intervals(ev, 5, QUICK, 0)
+    assert how.startswith("95 %: the fit +- t(0.975, n - 1) SDs of n = 5 parametric bootstrap refits")
     q = student_t.ppf(0.975, 4)
     assert q == pytest.approx(2.776, abs=1e-3)
     assert se["rolloff"] == pytest.approx(np.std(rolloff, ddof=1), rel=1e-12)
@@ -1103,7 +1109,62 @@ def test_bootstrap_interval_is_the_fit_plus_t_standard_errors_in_box_coordinates
     assert np.log1p(lo) == pytest.approx(np.log1p(100.0) - q * sd_log, rel=1e-9)
     assert np.log1p(hi) == pytest.approx(np.log1p(100.0) + q * sd_log, rel=1e-9)
     assert 0 < lo and 100.0 - lo < hi - 100.0
-    assert DL.bootstrap_intervals(ev, 1, QUICK, 0) == ({}, {})
+    assert DL.bootstrap_intervals(ev, 1, QUICK, 0) == ({}, {}, "")
+
+
+def test_intervals_come_from_the_fit_plus_the_noise(monkeypatch):
+    """The refits (four runs here) are to the fit's predictions plus noise of each row's SD (a frame's noise; a
+    drift's, its noise factor and the model's spread), not to resampled runs (whose SEs varied 200-fold over noise
+    seeds: bootstrap_intervals' docstring), on the rows the fit predicts (an irregular run's drift, whose
+    prediction is not smooth in the parameters, left out of the refits). With rho the noise of each run's frames
+    compared by position is AR(1) along time."""
+    rng = np.random.default_rng(0)
+    n_run, m = 4, 400
+    runs = np.repeat(np.array(["a", "b", "c", "d"]), m)
+    rf = pd.DataFrame({"run": np.append(runs, "d"), "time_s": np.append(np.tile(np.arange(m) / 100.0, n_run), 4.0),
+                       "compared": ["position"] * (n_run * m) + ["average_velocity"]})
+    rf = rf.sample(frac=1.0, random_state=1).reset_index(drop=True)  # rows in any order: AR(1) along time
+    drift = int(np.flatnonzero(rf["compared"] == "average_velocity")[0])
+    n = len(rf)
+    pred = rng.normal(0.0, 5.0, n)
+    factor, spread, cls = np.ones(n), np.zeros(n), np.array(["period_1"] * n, dtype=object)
+    factor[drift], spread[drift], cls[drift] = math.sqrt(2.0), 3.0, "irregular"
+    sim = {"pred": pred, "spread": spread, "noise_factor": factor, "cls": cls}
+    lin = SimpleNamespace(key="Pf_N", bounds=(0.0, 1.0), param=SimpleNamespace(log_from=None))
+    bound = SimpleNamespace(free=[lin], bounds=(np.array([0.0]), np.array([1.0])), row_frame=lambda: rf,
+                            kind="trajectory")
+    ev = SimpleNamespace(groups=pd.factorize(rf["run"])[0], bound=bound, y=pred.copy(), sigma=0.3,
+                         theta=np.array([0.5]), fit=SimpleNamespace(weights=None), sim=sim)
+    seen = []
+
+    def refit(bound_, y, sigma, rows, *args, **kw):
+        seen.append((np.asarray(y) - pred, rows))
+        return SimpleNamespace(theta=np.array([0.5 + 0.01 * len(seen)]))
+
+    monkeypatch.setattr(DL, "calibrate", refit)
+    ci, se, how = DL.bootstrap_intervals(ev, 5, QUICK, 0)
+    assert "parametric" in how and "AR(1)" not in how and "SD 0.3 mm" in how
+    assert "without the 1 row whose response is irregular or multistable at the fit" in how
+    assert se["Pf_N"] == pytest.approx(np.std(0.5 + 0.01 * np.arange(1, 6), ddof=1))
+    noise = np.array([e for e, _ in seen])
+    frames = np.arange(n) != drift
+    assert np.std(noise[:, frames]) == pytest.approx(0.3, rel=0.03)
+    assert all(rows is not None and drift not in rows and len(rows) == n - 1 for _, rows in seen)
+    # the drift row's draw: SD sqrt(0.3^2 x 2 + 3^2) = 3.03; white along time
+    assert np.std(noise[:, drift]) > 1.0
+    pos = rf.index[frames]
+    order = rf.loc[pos].sort_values(["run", "time_s"]).index.to_numpy()
+    lag1 = np.mean([np.corrcoef(e[order][:-1], e[order][1:])[0, 1] for e in noise])
+    assert abs(lag1) < 0.05
+    # AR(1) at 0.8 from frame to frame within each run, the same SD
+    seen.clear()
+    _, _, how = DL.bootstrap_intervals(ev, 5, QUICK, 0, rho=0.8)
+    assert "AR(1) from frame to frame at 0.8" in how
+    noise = np.array([e for e, _ in seen])
+    assert np.std(noise[:, frames]) == pytest.approx(0.3, rel=0.1)
+    within = [np.corrcoef(e[idx][:-1], e[idx][1:])[0, 1] for e in noise
+              for idx in (order[k * m:(k + 1) * m] for k in range(n_run))]
+    assert np.mean(within) == pytest.approx(0.8, abs=0.03)
 
 
 def test_residual_figure_draws_a_drift_row_apart_from_the_frames(tmp_path):
