@@ -1495,7 +1495,8 @@ def held_out_of_truth(ev: DynEvaluation, budget: Budget, seed: int, draws: int =
                       ) -> tuple[float, float, int] | None:
     """Return (mean, SD, draws) of the standardised held-out RMSE [response unit] that ``ev``'s model gives on
     this design when it is the truth: a parametric bootstrap. Each draw adds noise to the fit's predictions
-    (each row's SD from :func:`row_variance`: a frame's noise, a drift's, the model's spread), refits all rows
+    (:func:`noise_draw`: each row's SD from :func:`row_variance`, a frame's noise, a drift's, the model's spread),
+    refits all rows
     and then each fold warm from the fit (as :func:`evaluate` does) and scores the held-out rows as ``ev``'s
     are scored. None when nothing is free or the fit has no prediction somewhere.
 
@@ -1511,13 +1512,12 @@ def held_out_of_truth(ev: DynEvaluation, budget: Budget, seed: int, draws: int =
         return None
     sig = ev.sigma
     rng = np.random.default_rng(seed + 7)
-    sd = np.sqrt(row_variance(sig, ev.sim)) * np.ones(pred.size)
     spread = np.zeros_like(pred) if ev.cv_spread is None else ev.cv_spread
     var_cv = row_variance(sig, {"spread": spread, "noise_factor": ev.sim.get("noise_factor")}) * np.ones(pred.size)
     w = sig ** 2 / var_cv if sig > 0 else np.ones_like(pred)
     out = []
     for _ in range(int(draws)):
-        ys = pred + sd * rng.standard_normal(pred.size)
+        ys = noise_draw(ev, rng)
         th = calibrate(b, ys, sig, None, ev.theta, budget, seed, warm=True, weights=ev.fit.weights).theta
         cvp = np.full_like(ys, np.nan)
         for f in np.unique(ev.folds):
