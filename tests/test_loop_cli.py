@@ -21,9 +21,20 @@ def test_worked_example_error_falls_to_noise(tmp_path, cli):
          "--ledger", led],
         ["ledger", "plot", "--ledger", led, "--out", tmp_path / "ledger.png"],
     ]
+    said = {}
     for args in steps:
-        r = cli(*args, "--quiet") if args[0] != "ledger" else cli(*args)
+        # the improved model's compare is run as a user would, its summary on the terminal
+        loud = args[0] == "ledger" or args[2] == tmp_path / "coulomb_plus.yaml"
+        r = cli(*args) if loud else cli(*args, "--quiet")
         assert r.returncode == 0, r.stderr
+        said[args[0]] = r.stderr
+    # each free parameter with its 95 % interval, as metrics.json has them
+    params = json.loads((tmp_path / "cmp1" / "metrics.json").read_text())["params"]
+    free = {k: p for k, p in params.items() if p.get("free")}
+    assert len(free) >= 2
+    for key, p in free.items():
+        lo, hi = p["ci95"]
+        assert f"  {key} = {p['value']:.4g} [{lo:.4g}, {hi:.4g}] (95 %)" in said["compare"].splitlines()
     diag = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
     assert diag["verdict"]["missing_effect"] == "speed_power_law"
     led_df = read_table(led)

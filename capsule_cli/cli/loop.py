@@ -53,6 +53,19 @@ def _effort(name: str):
     return EFFORTS[name]
 
 
+def free_parameter_lines(params: dict) -> list[str]:
+    """Return one line per free parameter of a compare's metrics (``params``: {key: {value, free, ci95}}; the key
+    carries its unit): ``  Pf_N = 0.00775 [0.00768, 0.00781] (95 %)``, without brackets when there is no
+    interval."""
+    out = []
+    for key, rec in params.items():
+        if not rec.get("free"):
+            continue
+        ci = rec.get("ci95")
+        out.append(f"  {key} = {rec['value']:.4g}" + (f" [{ci[0]:.4g}, {ci[1]:.4g}] (95 %)" if ci else ""))
+    return out
+
+
 def register(app: typer.Typer) -> None:
     """Add the loop's commands to ``app``."""
 
@@ -131,6 +144,8 @@ def register(app: typer.Typer) -> None:
         if not quiet:
             typer.echo(f"{m.name}: n={met['n']} rmse={met['rmse']:.4g} cv_rmse={met['cv_rmse']:.4g}"
                        f"±{met['cv_rmse_se']:.2g} noise={met['noise_sd']:.4g} {met['unit']}", err=True)
+            for line in free_parameter_lines(met.get("params", {})):
+                typer.echo(line, err=True)
 
     @app.command("diagnose")
     def diagnose(
