@@ -1182,6 +1182,14 @@ def test_residual_figure_draws_a_drift_row_apart_from_the_frames(tmp_path):
     assert np.max(np.abs(frame_y)) < 0.11
     assert [list(ln.get_ydata()) for ln in drift_ax.get_lines()][0] == [35.8]
     assert "drift" in drift_ax.get_ylabel() and "[mm]" in drift_ax.get_ylabel()
+    # the run's drift in the irregular class's colour, as its frames are drawn (it was a fixed colour: that of
+    # one_impact in a figure with both classes)
+    from capsule_cli.plots.loop import _class_colours
+
+    colour = _class_colours(DL.RESPONSE_CLASSES)
+    one = [ln for ln in frames_ax.get_lines() if ln.get_label() == "one_impact"]
+    assert one and one[0].get_color() == colour["one_impact"] != colour["irregular"]
+    assert drift_ax.get_lines()[0].get_color() == colour["irregular"]
     assert (tmp_path / "r.png").stat().st_size > 0
 
 

@@ -432,8 +432,9 @@ def dynamics_residual_figure(frames: pd.DataFrame, xcols: list[str], rcol: str, 
     if drift is not None and len(drift):
         axd = fig.add_subplot(top[0, len(xcols)])
         runs = drift["run"].astype(str).to_list()
+        # in the irregular class's colour, as the run's frames and its drift rate below
         axd.errorbar(range(len(runs)), drift[rcol].to_numpy(float), yerr=drift["sd"].to_numpy(float), fmt="D",
-                     ms=4, mfc="none", color=OKABE_ITO[1], capsize=2)
+                     ms=4, mfc="none", color=colour.get("irregular", OKABE_ITO[1]), capsize=2)
         axd.axhline(0.0, color="0.6", lw=0.8)
         axd.set_xticks(range(len(runs)), runs, fontsize=6)
         axd.set_xlim(-0.6, len(runs) - 0.4)
