@@ -1423,7 +1423,8 @@ def bootstrap_intervals(ev: DynEvaluation, n: int, budget: Budget, seed: int, rh
     parameters from a parametric bootstrap: n synthetic data sets at the fit (:func:`noise_draw`: its predictions
     plus the noise, each row's SD from the error model; ``rho``, the lag-1 correlation of a trajectory's position
     noise from frame to frame, 0 when white), each refitted from the fit (warm start, fold budget) on the rows
-    the fit predicts (:func:`predictable`): refitted, not linearised, so the intervals need no smooth objective.
+    the fit predicts (:func:`predictable`; on every row when fewer than k + 3 are, k the free parameters):
+    refitted, not linearised, so the intervals need no smooth objective.
 
     Why parametric: the drives of a study are set by the experimenter, a fixed design, for which the bootstrap
     resamples the errors, not the cases (Efron & Tibshirani, An Introduction to the Bootstrap, 1993, section
