@@ -1090,7 +1090,8 @@ def test_bootstrap_interval_is_the_fit_plus_t_standard_errors_in_box_coordinates
     draws = iter(np.column_stack([rolloff, g, a]))
     monkeypatch.setattr(DL, "calibrate", lambda *args, **kw: SimpleNamespace(theta=next(draws)))
     groups = np.repeat(np.arange(6), 3)
-    ev = SimpleNamespace(groups=groups, bound=bound, y=np.zeros(groups.size), sigma=1.0, theta=theta,
+    ev = SimpleNamespace(groups=groups, bound=bound, y=np.zeros(groups.size), sigma=1.0, theta=theta, k=3,
+                         resid=np.zeros(groups.size),
                          fit=SimpleNamespace(weights=None),
                          sim={"pred": np.zeros(groups.size), "spread": np.zeros(groups.size),
                               "cls": np.array(["period_1"] * groups.size)})
@@ -1133,8 +1134,9 @@ def test_intervals_come_from_the_fit_plus_the_noise(monkeypatch):
     lin = SimpleNamespace(key="Pf_N", bounds=(0.0, 1.0), param=SimpleNamespace(log_from=None))
     bound = SimpleNamespace(free=[lin], bounds=(np.array([0.0]), np.array([1.0])), row_frame=lambda: rf,
                             kind="trajectory")
-    ev = SimpleNamespace(groups=pd.factorize(rf["run"])[0], bound=bound, y=pred.copy(), sigma=0.3,
-                         theta=np.array([0.5]), fit=SimpleNamespace(weights=None), sim=sim)
+    ev = SimpleNamespace(groups=pd.factorize(rf["run"])[0], bound=bound, y=pred.copy(), sigma=0.3, k=1,
+                         resid=rng.normal(0.0, 0.25, n), theta=np.array([0.5]), fit=SimpleNamespace(weights=None),
+                         sim=sim)
     seen = []
 
     def refit(bound_, y, sigma, rows, *args, **kw):
@@ -1165,6 +1167,14 @@ def test_intervals_come_from_the_fit_plus_the_noise(monkeypatch):
     within = [np.corrcoef(e[idx][:-1], e[idx][1:])[0, 1] for e in noise
               for idx in (order[k * m:(k + 1) * m] for k in range(n_run))]
     assert np.mean(within) == pytest.approx(0.8, abs=0.03)
+    # a fit whose residuals exceed the noise estimate (a model that misses the data, the noise from replicates)
+    # draws its noise at its own residual SD, so its intervals are not those of a right model
+    ev.resid = rng.normal(0.0, 3.0, n)
+    seen.clear()
+    _, _, how = DL.bootstrap_intervals(ev, 5, QUICK, 0)
+    s_fit = DL.standardised_residual_sd(ev)
+    assert s_fit == pytest.approx(3.0, rel=0.05) and "the fit's residual SD, above the noise estimate" in how
+    assert np.std(np.array([e for e, _ in seen])[:, frames]) == pytest.approx(s_fit, rel=0.03)
 
 
 def test_residual_figure_draws_a_drift_row_apart_from_the_frames(tmp_path):
