@@ -8,8 +8,6 @@ import pytest
 from capsule_cli.cli import main
 from capsule_cli.tables import read_table
 
-pytestmark = pytest.mark.xdist_group("dynamics")
-
 
 def test_simulate_writes_tables_with_units(tmp_path):
     out = tmp_path / "run"

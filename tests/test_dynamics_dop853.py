@@ -9,8 +9,6 @@ import pytest
 from capsule_cli.dynamics import engine as E
 from capsule_cli.dynamics.model import Drive, EngineOptions, friction_preset, load_model, pack_params
 
-pytestmark = pytest.mark.xdist_group("dynamics")
-
 
 def test_tableau_meets_the_order_conditions_it_can_be_checked_on():
     """Row sums = nodes; quadrature conditions sum b_i c_i^(k-1) = 1/k up to order 8; error weights

@@ -21,7 +21,6 @@ from capsule_cli.effects.registry import effects, get_effect
 from capsule_cli.errors import InputError
 from capsule_cli.models.friction import power_law_friction_N
 
-pytestmark = pytest.mark.xdist_group("dynamics")
 
 EFFECTS = ("speed_dependent_friction", "secondary_constraint", "viscous_drag", "tilt_friction", "substrate_compliance")
 

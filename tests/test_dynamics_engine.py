@@ -19,8 +19,6 @@ from capsule_cli.dynamics import CapsuleModel, Drive, DynamicsError, friction_pr
 from capsule_cli.dynamics.reference import reference_run
 from capsule_cli.dynamics.sweep import period_number, run_sweep
 
-pytestmark = pytest.mark.xdist_group("dynamics")
-
 
 @pytest.fixture(scope="module")
 def one_sided():

@@ -16,7 +16,6 @@ from capsule_cli.dynamics.model import EngineOptions
 from capsule_cli.dynamics.reference import reference_run
 from capsule_cli.dynamics.system import build_system
 
-pytestmark = pytest.mark.xdist_group("dynamics")
 
 CASES = [
     # (effects, params, f_Hz): each exercises one kind of general mode

@@ -16,7 +16,6 @@ import pytest
 
 from capsule_cli.dynamics import Drive, friction_preset, load_model, simulate
 
-pytestmark = pytest.mark.xdist_group("dynamics")
 
 # drive frequencies from just below the magnet's resonance (29.5 Hz) up, irregularly spaced against the cell grid:
 # the orbit's peak then falls at |arg H| / Omega, from 0.9 ms to half a period after the start (below 25 Hz it

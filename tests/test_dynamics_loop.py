@@ -18,10 +18,9 @@ from capsule_cli.effects.model import build_model
 from capsule_cli.errors import InputError
 from capsule_cli.steps import dynamics_loop as DL
 
-# one worker: module fixtures run once. The diagnoses over all five candidates (marked slow) take minutes of
+# The diagnoses over all five candidates (marked slow) take minutes of
 # engine time each on the opened engine: run by `make test-slow`, not by CI's `make test`; the rest is cheap.
 # The CI-time loop tests are in tests/test_dynamics_loop_fast.py.
-pytestmark = [pytest.mark.xdist_group("dynamics_loop")]
 
 NOISE = 0.5  # generating noise SD [mm/s]
 BUDGET = DL.Budget(scan_per_param=4, starts=2, evals_per_param=40, fold_evals_per_param=8, bootstrap=0)

@@ -25,7 +25,6 @@ from capsule_cli.steps import crossval
 from capsule_cli.steps import dynamics_loop as DL
 from capsule_cli.steps.diagnose import all_effects
 
-pytestmark = pytest.mark.xdist_group("dynamics_loop")
 
 NOISE = 0.5  # generating noise SD [mm/s]
 QUICK = DL.EFFORTS["quick"]

@@ -16,7 +16,6 @@ from capsule_cli.effects.model import build_model
 from capsule_cli.steps import dynamics_loop as DL
 from capsule_cli.steps import verdict as V
 
-pytestmark = pytest.mark.xdist_group("dynamics_loop")
 
 POS_NOISE = 0.1  # [mm]
 

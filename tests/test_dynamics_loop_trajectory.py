@@ -13,8 +13,6 @@ from capsule_cli.effects.model import build_model
 from capsule_cli.plots.loop import noise_band_label
 from capsule_cli.steps import dynamics_loop as DL
 
-# about a second each since the loop's small batches run on one engine thread (issue 12 session 4): in CI
-pytestmark = pytest.mark.xdist_group("dynamics_loop")
 
 POS_NOISE = 0.05  # [mm]
 

@@ -24,7 +24,6 @@ from capsule_cli.dynamics.system import Protocol, build_system, progression, tra
 from capsule_cli.effects.registry import load_plugins
 from capsule_cli.errors import InputError
 
-pytestmark = pytest.mark.xdist_group("dynamics")
 
 PLUGIN = textwrap.dedent('''
     import math

@@ -12,7 +12,6 @@ from capsule_cli.dynamics.sweep import period_number
 from capsule_cli.steps.dynamics import Pd_chunks, magnify_table, plan_magnify_jobs
 from capsule_cli.tables import read_table
 
-pytestmark = pytest.mark.xdist_group("dynamics")
 
 MODEL, _ = load_model("prototype_one_sided")
 

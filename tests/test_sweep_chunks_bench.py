@@ -9,8 +9,6 @@ from capsule_cli.dynamics.bench import run_bench, run_fig19_bench
 from capsule_cli.dynamics.model import load_model
 from capsule_cli.steps.dynamics import load_fig19, magnify_table
 
-pytestmark = pytest.mark.xdist_group("dynamics")
-
 
 def test_fig19_bench_record_on_a_subset():
     rec = run_fig19_bench(Pd_num=2, f_num=2, frictions=["0.17", "eq23"], sample_periods=2)

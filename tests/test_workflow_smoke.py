@@ -17,7 +17,6 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.mark.smoke
-@pytest.mark.xdist_group("smoke")
 def test_smoke_workflow_builds_every_target(tmp_path):
     snakemake = Path(sys.executable).with_name("snakemake")
     # CI (.github/workflows/ci.yml) names a folder to keep the smoke figures as an artifact

@@ -3076,7 +3076,7 @@ def run_segments(p, opts, state0, n_transient, n_record, sample_times, ev_cap, e
     n_skipped = 0  # periods skipped once settled (settle_tol)
     # a settled orbit (q periods) also fills the recorded periods once one orbit of them is integrated, in
     # runs that record no samples, events or energy (maps and sweeps): the rest repeat it
-    orbit_q = 0
+    orbit_q = np.int64(0)
     hist = np.zeros((SETTLE_ORBIT_MAX + 1, 6))  # phase-0 states of the last periods (settled transient)
     Xc_hist = np.zeros(SETTLE_ORBIT_MAX + 1)
 
@@ -3174,15 +3174,15 @@ def run_segments(p, opts, state0, n_transient, n_record, sample_times, ev_cap, e
             shell = FAST_NEG if fast else SLIP_NEG
 
     n_total = n_transient + n_record
-    period = 0
+    period = np.int64(0)
     n_ev = 0
-    j_sample = 0
+    j_sample = np.int64(0)
     status = STATUS_OK
     status_t = 0.0
     zeno_count = 0
     if settle:
         Xc_hist[0] = Xc
-        settled_orbit(hist, 0, xr, vr, Vc, dsub, contact, shell, settle_x, settle_v)
+        settled_orbit(hist, np.int64(0), xr, vr, Vc, dsub, contact, shell, settle_x, settle_v)
     # period accumulators
     Xc_start = Xc
     n_front = 0
@@ -3437,7 +3437,7 @@ def run_many(P, opts, states0, n_transient, n_record):
     final = np.zeros((n, N_FINAL))
     for i in prange(n):
         st, st_t, sm, ns, ev, nev, per, en, fin = run_core(P[i], opts, states0[i], n_transient, n_record,
-                                                          1.0, 0, 0)
+                                                          1.0, np.int64(0), np.int64(0))
         status[i] = st
         periods[i] = per
         energy[i] = en

@@ -57,9 +57,8 @@ def period_number(xr: np.ndarray, vr: np.ndarray, max_period: int = 8, rel_tol: 
     sx = max(float(np.ptp(xr)), 1e-6, float(np.max(np.abs(xr))) * 1e-3)
     sv = max(float(np.ptp(vr)), 1e-3, float(np.max(np.abs(vr))) * 1e-3)
     for p in range(1, min(max_period, n - 1) + 1):
-        dx = np.abs(xr[p:] - xr[:-p]) / sx
-        dv = np.abs(vr[p:] - vr[:-p]) / sv
-        if max(dx.max(), dv.max()) < rel_tol:
+        # max(|a|) / s is max(|a| / s) exactly (division by s > 0 is monotone in rounding too)
+        if max(np.abs(xr[p:] - xr[:-p]).max() / sx, np.abs(vr[p:] - vr[:-p]).max() / sv) < rel_tol:
             return p
     return 0
 

@@ -254,8 +254,10 @@ def summarize_periods(per: np.ndarray, f_Hz: float) -> dict:
     disp = per[:, E.P_DISP]
     impacts = per[:, E.P_NFRONT] + per[:, E.P_NBACK]
     pn = period_number(per[:, E.P_XR0], per[:, E.P_VR0])
-    win = [w for w in np.array_split(disp, N_WINDOWS) if w.size]
-    wv = np.array([w.sum() / (w.size * T) for w in win]) * 1e3
+    # the windows np.array_split makes (the first n % N_WINDOWS one period longer), the empty ones dropped
+    q, r = divmod(n, N_WINDOWS)
+    ends = np.cumsum([q + 1] * r + [q] * (N_WINDOWS - r))
+    wv = np.array([disp[a:b].sum() / ((b - a) * T) for a, b in zip(np.r_[0, ends[:-1]], ends) if b > a]) * 1e3
     return {
         "velocity_mm_s": float(disp.sum() / (n * T) * 1e3),
         "impacts_per_period": float(impacts.mean()),
@@ -338,7 +340,8 @@ def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmo
                              system.model.plugin_forces)
                 results[i] = per_i
                 states[j] = (fin_i[0], fin_i[1], 0.0, fin_i[3])
-    return pd.DataFrame([summarize_periods(results[i], float(f[i])) for i in range(n)])
+    rows = [summarize_periods(results[i], float(f[i])) for i in range(n)]
+    return pd.DataFrame({k: [r[k] for r in rows] for k in rows[0]})
 
 
 def trajectory(system: DynSystem, f_Hz: float, Pd_N: float, time_s, duty=None, waveform: str = "harmonic",

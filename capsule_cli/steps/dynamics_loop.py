@@ -282,9 +282,17 @@ class DynBound(FreeParams):
             self.cond_index, uniq = pd.factorize(key)
             first = pd.Series(np.arange(len(self.df))).groupby(self.cond_index).first().to_numpy()
             self.conditions = self.df.iloc[first][cols].reset_index(drop=True)
+            c = self.conditions
+            #: the conditions' drives: f [Hz], P_d [N], duty [-] (None: the default) and waveform (per condition,
+            #: or one name)
+            self._cond_drive = (c["f_Hz"].to_numpy(float), c["Pd_N"].to_numpy(float),
+                                c["duty"].to_numpy(float) if "duty" in c else None,
+                                c["waveform"].to_numpy(object) if "waveform" in c else "harmonic")
         else:
             self.runs = [(str(r), d) for r, d in self.df.groupby("run", sort=False)]
             self.run_drive = {r: _drive_of(d, self.where) for r, d in self.runs}
+            #: per run, the value of each friction effect's covariate (one per run, checked above)
+            self._run_cov = {r: {cov: float(d[cov].iloc[0]) for _, cov in self.friction_mods} for r, d in self.runs}
             self.modes = dict(modes) if modes else {r: "position" for r, _ in self.runs}
             self._build_rows()
 
@@ -305,10 +313,9 @@ class DynBound(FreeParams):
         if not self.friction_mods:
             return sysm
         by_name = self.params_by_name(theta)
-        row = dict(self.runs)[run].iloc[0]
         pf = float(sysm.Pf_N)
         for eff, cov in self.friction_mods:
-            pf *= float(eff.apply(float(row[cov]), {prm.key: float(by_name[prm.name]) for prm in eff.params}))
+            pf *= float(eff.apply(self._run_cov[run][cov], {prm.key: float(by_name[prm.name]) for prm in eff.params}))
         return replace(sysm, Pf_N=pf)
 
     # -- rows
@@ -316,25 +323,37 @@ class DynBound(FreeParams):
         """Trajectory comparison rows: frames of position-mode runs, one row per velocity-mode run; a run
         compared by position up to its predictability horizon has both (its frames up to it, then its row)."""
         rows, obs, groups, factor = [], [], [], []
+        # per run, in the rows' order (:meth:`_sim_trajectory`): (run, its frames' times [s] in the table's order,
+        # its position rows (positions in ``rows``) and their frames' positions in the run, its average-velocity
+        # row or -1)
+        blocks = []
         for gi, (r, d) in enumerate(self.runs):
             until = position_horizon_s(self.modes[r])
+            js, loc, drift = np.zeros(0, int), np.zeros(0, int), -1
             if self.modes[r] == "position" or until is not None:
                 e = d if until is None else d[d["time_s"] <= until + 1e-9]
+                js = np.arange(len(rows), len(rows) + len(e))
+                loc = d.index.get_indexer(e.index)
                 for i in e.index:
                     rows.append(("position", r, int(i)))
                 obs += list(e[self.response].to_numpy(float))
                 groups += [gi] * len(e)
                 factor += [1.0] * len(e)
             if self.modes[r] != "position":
+                drift = len(rows)
                 rows.append(("average_velocity", r, int(d.index[0])))
                 obs.append(run_drift(d["time_s"].to_numpy(float), d[self.response].to_numpy(float),
                                      self.run_drive[r][0])[1])
                 groups.append(gi)
                 factor.append(drift_noise_factor(d["time_s"].to_numpy(float), self.run_drive[r][0]))
+            blocks.append((r, d["time_s"].to_numpy(float), js, loc, drift))
         self.rows = rows
+        self._blocks = blocks
         self._by_position = frames_by_position(rows)
-        # per row: its run, and the frame time in drive periods (inf for an average-velocity row)
-        self._row_run = np.array([r for _, r, _ in rows], dtype=object)
+        # per row: its run (its place in ``blocks``), and the frame time in drive periods (inf for an
+        # average-velocity row)
+        self._row_block = np.array([gi for gi, (_, _, js, _, drift) in enumerate(blocks)
+                                    for _ in range(js.size + (drift >= 0))], int)
         t = self.df["time_s"].to_numpy(float)[[i for _, _, i in rows]] if rows else np.zeros(0)
         self._row_time = np.where(self._by_position, t, np.inf)
         self._row_periods = self._row_time * np.array([self.run_drive[r][0] for _, r, _ in rows], float)
@@ -408,14 +427,13 @@ class DynBound(FreeParams):
         try:
             sysm = self.system(theta)
             pfs = self.condition_pf(theta, sysm)
-            wf = c["waveform"].to_numpy(object)[sel] if "waveform" in c else "harmonic"
-            du = c["duty"].to_numpy(float)[sel] if "duty" in c else None
+            f, pdn, du, wf = self._cond_drive
             per = sel.size * (self.protocol.transient_periods + self.protocol.recorded_periods)
             t0 = time.perf_counter()
             with engine_threads(per, self.last_batch_s):
-                out = dsys.progression(sysm, c["f_Hz"].to_numpy(float)[sel], c["Pd_N"].to_numpy(float)[sel],
-                                       duty=du, waveform=wf, protocol=self.protocol, options=self.options,
-                                       Pf_N=None if pfs is None else pfs[sel])
+                out = dsys.progression(sysm, f[sel], pdn[sel], duty=None if du is None else du[sel],
+                                       waveform=wf if isinstance(wf, str) else wf[sel], protocol=self.protocol,
+                                       options=self.options, Pf_N=None if pfs is None else pfs[sel])
             self.last_batch_s = time.perf_counter() - t0
         except NotImplementedError:
             raise
@@ -424,8 +442,8 @@ class DynBound(FreeParams):
             ci = self.cond_index
             return {"pred": vel[ci], "spread": spread[ci], "cls": cls[ci]}
         vel[sel] = out["velocity_mm_s"].to_numpy()
-        spread[sel] = np.where(out["response_class"] == "irregular", out["window_sd_mm_s"].to_numpy() / 2, 0.0)
         cls[sel] = out["response_class"].to_numpy(object)
+        spread[sel] = np.where(cls[sel] == "irregular", out["window_sd_mm_s"].to_numpy() / 2, 0.0)
         if starts:
             # every condition: a periodic response can coexist with another attractor (multistable),
             # reached from a start a few um away or after a small change of a parameter
@@ -541,9 +559,10 @@ class DynBound(FreeParams):
         need, t_max = None, {}
         if rows is not None:  # only these rows' runs, each up to its last needed frame
             sel = np.asarray(rows, int)
-            t_max = pd.Series(self._row_time[sel]).groupby(self._row_run[sel]).max().to_dict()
+            last = np.full(len(self._blocks), -np.inf)
+            np.maximum.at(last, self._row_block[sel], self._row_time[sel])
+            t_max = {self._blocks[k][0]: float(last[k]) for k in np.unique(self._row_block[sel])}
             need = set(t_max)
-        runs = dict(self.runs)
         try:
             sysm = self.system(theta)
             summ = self.run_summary(theta) if classify else {}
@@ -551,36 +570,39 @@ class DynBound(FreeParams):
             raise
         except (InputError, RuntimeError, ValueError, FloatingPointError):
             return {"pred": pred, "spread": spread, "cls": cls, "by_position": by_position, "noise_factor": fac}
-        pos = {}
         try:
-            for j, (mode, r, i) in enumerate(self.rows):
+            # run by run, in the rows' order; a run the engine cannot run leaves its rows and every later one NaN
+            # (a large penalty in the costs) and "failed" (but the row it failed at, which has its class)
+            for r, t, js, loc, drift in self._blocks:
                 if need is not None and r not in need:
                     continue
                 s = summ.get(r)
-                cls[j] = s["response_class"] if s else "not_classified"
-                d = runs[r]
+                c = s["response_class"] if s else "not_classified"
                 f, pdn, duty, wf = self.run_drive[r]
-                if mode == "position":
-                    if r not in pos:
-                        dd = d[d["time_s"] <= t_max[r]] if r in t_max else d
-                        tr = dsys.trajectory(self.run_system(sysm, theta, r), f, pdn, dd["time_s"].to_numpy(float),
-                                             duty=duty, waveform=wf, options=self.options)
-                        pos[r] = pd.Series(tr[self.response], index=dd.index)
-                    pred[j] = pos[r].get(i, np.nan)
-                    spread[j] = 0.0
-                else:  # drift over the run's whole periods from rest, taken from the model's positions at the
-                    # run's frames as the observed one is from the data's (run_drift); spread from the window SD.
-                    # A run also compared by position up to its horizon was simulated at every frame above
-                    if r not in pos or len(pos[r]) < len(d):
-                        tr = dsys.trajectory(self.run_system(sysm, theta, r), f, pdn, d["time_s"].to_numpy(float),
-                                             duty=duty, waveform=wf, options=self.options)
-                        pos[r] = pd.Series(tr[self.response], index=d.index)
-                    dur, pred[j] = run_drift(d.loc[pos[r].index, "time_s"].to_numpy(float), pos[r].to_numpy(float), f)
-                    spread[j] = ((s["window_sd_mm_s"] / 2) * dur if s and s["response_class"] == "irregular"
-                                 else 0.0)
+                x, whole = None, False  # the model's positions at the run's frames (NaN where not simulated)
+                if js.size:
+                    cls[js[0]] = c
+                    keep = t <= t_max[r] if r in t_max else np.ones(t.size, bool)
+                    tr = dsys.trajectory(self.run_system(sysm, theta, r), f, pdn, t[keep], duty=duty, waveform=wf,
+                                         options=self.options)
+                    x = np.full(t.size, np.nan)
+                    x[keep] = tr[self.response]
+                    whole = bool(keep.all())
+                    pred[js], cls[js] = x[loc], c
+                if drift >= 0:
+                    # drift over the run's whole periods from rest, taken from the model's positions at the run's
+                    # frames as the observed one is from the data's (run_drift); spread from the window SD. A run
+                    # also compared by position up to its horizon was simulated at every frame above
+                    cls[drift] = c
+                    if not whole:
+                        x = np.asarray(dsys.trajectory(self.run_system(sysm, theta, r), f, pdn, t, duty=duty,
+                                                       waveform=wf, options=self.options)[self.response], float)
+                    dur, pred[drift] = run_drift(t, x, f)
+                    spread[drift] = ((s["window_sd_mm_s"] / 2) * dur if s and s["response_class"] == "irregular"
+                                     else 0.0)
                     if starts:
-                        spread[j] = max(spread[j], self._drift_start_sd(self.run_system(sysm, theta, r), r,
-                                                                        pred[j]))
+                        spread[drift] = max(spread[drift], self._drift_start_sd(self.run_system(sysm, theta, r), r,
+                                                                                pred[drift]))
         except (InputError, RuntimeError, ValueError, FloatingPointError):
             pass  # rows not reached stay NaN (a large penalty in the costs)
         return {"pred": pred, "spread": spread, "cls": cls, "by_position": by_position, "noise_factor": fac}
