@@ -20,7 +20,7 @@ every one (the secondary constraint's was 0.72-0.75 mm/s until the calibration's
 starting-state weights, steps/dynamics_loop.py: calibrate). On 14 rows a perfect
 model alone exceeds 1.2 x SD with probability ~0.12 (chi-square), so the criterion is noisy on designs this
 small; the 40-condition design is the benchmark's (benchmarks/bench_dynamics_loop.py). CPU: 16-30 s per
-effect on a loaded 2-core machine.
+effect on a loaded 2-core machine in session 25, 41-70 s on a slower day (2026-12-02).
 """
 from __future__ import annotations
 

@@ -48,10 +48,13 @@ def test_chunks_grow_at_most_twofold():
     assert _next_size(0, 0.0, 0.2, 10_000, 2) == 2
 
 
-def test_run_many_dealt_to_threads_returns_points_in_order():
+def test_run_many_dealt_to_threads_returns_points_in_order(monkeypatch):
     """The wrapper deals points i, i + T, ... to thread i and puts the results back: bit for bit the engine's
-    own prange in the given order, for any number of points."""
+    own prange in the given order, for any number of points. T = 3 whatever the engine runs on (one thread per
+    test worker, tests/conftest.py): the dealing and its inverse are what is tested."""
+    from capsule_cli.dynamics import parallel
     from capsule_cli.dynamics.parallel import run_many
+    monkeypatch.setattr(parallel.numba, "get_num_threads", lambda: 3)
     P = _grid(friction_preset("coulomb", 0.007), Pd=(0.05, 0.1, 0.2, 0.3, 0.4), f=(18.0, 26.0, 34.0))
     opts = EngineOptions(energy=False).pack()
     for n in (1, 2, 7, len(P)):
