@@ -291,6 +291,8 @@ class DynBound(FreeParams):
         else:
             self.runs = [(str(r), d) for r, d in self.df.groupby("run", sort=False)]
             self.run_drive = {r: _drive_of(d, self.where) for r, d in self.runs}
+            #: per run, its frames' times [s] in the table's order
+            self._run_t = {r: d["time_s"].to_numpy(float) for r, d in self.runs}
             #: per run, the value of each friction effect's covariate (one per run, checked above)
             self._run_cov = {r: {cov: float(d[cov].iloc[0]) for _, cov in self.friction_mods} for r, d in self.runs}
             self.modes = dict(modes) if modes else {r: "position" for r, _ in self.runs}
@@ -342,11 +344,10 @@ class DynBound(FreeParams):
             if self.modes[r] != "position":
                 drift = len(rows)
                 rows.append(("average_velocity", r, int(d.index[0])))
-                obs.append(run_drift(d["time_s"].to_numpy(float), d[self.response].to_numpy(float),
-                                     self.run_drive[r][0])[1])
+                obs.append(run_drift(self._run_t[r], d[self.response].to_numpy(float), self.run_drive[r][0])[1])
                 groups.append(gi)
-                factor.append(drift_noise_factor(d["time_s"].to_numpy(float), self.run_drive[r][0]))
-            blocks.append((r, d["time_s"].to_numpy(float), js, loc, drift))
+                factor.append(drift_noise_factor(self._run_t[r], self.run_drive[r][0]))
+            blocks.append((r, self._run_t[r], js, loc, drift))
         self.rows = rows
         self._blocks = blocks
         self._by_position = frames_by_position(rows)
@@ -376,8 +377,7 @@ class DynBound(FreeParams):
             rec = self.df.loc[i].to_dict()
             rec["compared"] = mode
             if mode == "average_velocity":
-                d = dict(self.runs)[r]
-                rec["time_s"] = whole_periods_s(float(d["time_s"].max()), self.run_drive[r][0])
+                rec["time_s"] = whole_periods_s(float(self._run_t[r].max()), self.run_drive[r][0])
             recs.append(rec)
         return pd.DataFrame(recs)
 
@@ -473,7 +473,7 @@ class DynBound(FreeParams):
         velocity to the mean over all starts (rest included) and their spread to
         max(window term, SD over starts x sqrt(1 + 1 / starts)): the SD of a new run's average about that
         mean. Conditions that fail from a perturbed start keep the rest run's values."""
-        c = self.conditions
+        f, pdn, du, wf = self._cond_drive
         m, offs = irr.size, np.asarray(START_OFFSETS_M, float)
         # rest: every condition from each offset (one parallel batch); continuation: each sweep again with the
         # offset added to the state every condition starts from (the state handed over is as uncertain)
@@ -482,12 +482,11 @@ class DynBound(FreeParams):
         v = [vel[irr]]
         try:
             for rep, off in zip(sweeps, off_of):
-                wf = c["waveform"].to_numpy(object)[rep] if "waveform" in c else "harmonic"
-                du = c["duty"].to_numpy(float)[rep] if "duty" in c else None
                 with engine_threads(rep.size * (self.protocol.transient_periods + self.protocol.recorded_periods)):
-                    out = dsys.progression(sysm, c["f_Hz"].to_numpy(float)[rep], c["Pd_N"].to_numpy(float)[rep],
-                                           duty=du, waveform=wf, protocol=self.protocol, options=self.options,
-                                           start_offset_m=off, Pf_N=None if pfs is None else pfs[rep])
+                    out = dsys.progression(sysm, f[rep], pdn[rep], duty=None if du is None else du[rep],
+                                           waveform=wf if isinstance(wf, str) else wf[rep], protocol=self.protocol,
+                                           options=self.options, start_offset_m=off,
+                                           Pf_N=None if pfs is None else pfs[rep])
                 v.append(out["velocity_mm_s"].to_numpy(float))
         except (InputError, RuntimeError, ValueError, FloatingPointError):
             return
@@ -501,9 +500,9 @@ class DynBound(FreeParams):
         after RUN_CLASS_PROTOCOL) and the run's whole periods from t = 0."""
         sysm = self.system(theta)
         out = {}
-        for r, d in self.runs:
+        for r, _ in self.runs:
             f, pdn, duty, wf = self.run_drive[r]
-            k = max(int(math.floor(d["time_s"].max() * f + 1e-9)), 1)
+            k = max(int(math.floor(self._run_t[r].max() * f + 1e-9)), 1)
             with engine_threads(1):
                 pr = dsys.progression(self.run_system(sysm, theta, r), [f], [pdn], duty=duty, waveform=wf,
                                       protocol=RUN_CLASS_PROTOCOL, options=self.options)
@@ -525,9 +524,8 @@ class DynBound(FreeParams):
     def path_and_spread(self, theta, run: str) -> tuple[np.ndarray, np.ndarray]:
         """Return per frame of trajectory ``run`` (its rows' order) the model's position [response unit, mm] on its
         path from rest and :meth:`start_spread_path` there (NaN and inf everywhere where the engine fails)."""
-        d = dict(self.runs)[run]
         f, pdn, duty, wf = self.run_drive[run]
-        t = d["time_s"].to_numpy(float)
+        t = self._run_t[run]
         try:
             sysm = self.run_system(self.system(theta), theta, run)
 
@@ -579,12 +577,12 @@ class DynBound(FreeParams):
                 s = summ.get(r)
                 c = s["response_class"] if s else "not_classified"
                 f, pdn, duty, wf = self.run_drive[r]
+                rs = self.run_system(sysm, theta, r)
                 x, whole = None, False  # the model's positions at the run's frames (NaN where not simulated)
                 if js.size:
                     cls[js[0]] = c
                     keep = t <= t_max[r] if r in t_max else np.ones(t.size, bool)
-                    tr = dsys.trajectory(self.run_system(sysm, theta, r), f, pdn, t[keep], duty=duty, waveform=wf,
-                                         options=self.options)
+                    tr = dsys.trajectory(rs, f, pdn, t[keep], duty=duty, waveform=wf, options=self.options)
                     x = np.full(t.size, np.nan)
                     x[keep] = tr[self.response]
                     whole = bool(keep.all())
@@ -595,14 +593,13 @@ class DynBound(FreeParams):
                     # also compared by position up to its horizon was simulated at every frame above
                     cls[drift] = c
                     if not whole:
-                        x = np.asarray(dsys.trajectory(self.run_system(sysm, theta, r), f, pdn, t, duty=duty,
-                                                       waveform=wf, options=self.options)[self.response], float)
+                        x = np.asarray(dsys.trajectory(rs, f, pdn, t, duty=duty, waveform=wf,
+                                                       options=self.options)[self.response], float)
                     dur, pred[drift] = run_drift(t, x, f)
                     spread[drift] = ((s["window_sd_mm_s"] / 2) * dur if s and s["response_class"] == "irregular"
                                      else 0.0)
                     if starts:
-                        spread[drift] = max(spread[drift], self._drift_start_sd(self.run_system(sysm, theta, r), r,
-                                                                                pred[drift]))
+                        spread[drift] = max(spread[drift], self._drift_start_sd(rs, r, pred[drift]))
         except (InputError, RuntimeError, ValueError, FloatingPointError):
             pass  # rows not reached stay NaN (a large penalty in the costs)
         return {"pred": pred, "spread": spread, "cls": cls, "by_position": by_position, "noise_factor": fac}
@@ -622,9 +619,8 @@ class DynBound(FreeParams):
         from rest is not predictable; its drift need not be either: three 3-s runs with nothing missing, the
         22 Hz / 0.15 N run's drift over 3 s spread by 0.96 mm over starts 1-10 um from rest (noise 0.3 mm a
         frame), its window term by 0.0008 mm. 0 where a start fails."""
-        d = dict(self.runs)[run]
         f, pdn, duty, wf = self.run_drive[run]
-        t = d["time_s"].to_numpy(float)
+        t = self._run_t[run]
         v = [drift_mm]
         try:
             for x0 in START_OFFSETS_M:
