@@ -110,6 +110,72 @@ def test_progression_classes_and_window_spread():
     assert abs(out["velocity_mm_s"].iloc[0]) < 1e-6
 
 
+def test_batch_summary_is_each_conditions_own_to_the_last_bit():
+    """summarize_batch (all conditions at once) gives, bit for bit, what each condition's records give alone,
+    written out here one condition at a time (the average velocity, the mean impacts, np.array_split's four
+    windows and their SD with ddof 1, the smallest repeating period): the engine's records of no-impact,
+    periodic, multi-impact and irregular responses, 13 recorded periods (windows of 4, 3, 3, 3)."""
+    from capsule_cli.dynamics import engine as E
+    from capsule_cli.dynamics.parallel import run_many
+    from capsule_cli.dynamics.model import EngineOptions
+    sysm = dsys.build_system("one_sided", {"Pf_N": 0.02, "gap_back_mm": 0.3}, ["secondary_constraint"])
+    f = np.tile([10.0, 24.0, 30.0, 34.0, 38.0], 2)
+    pd_ = np.r_[0.01, np.full(4, 0.08), np.full(5, 0.15)]
+    _, _, _, drives = dsys._conditions(f, pd_, None, "harmonic", sysm)
+    P = np.stack([sysm.params_row(d) for d in drives])
+    st, per, _, _ = run_many(P, EngineOptions(energy=False).pack(), np.zeros((f.size, 4)), 40, 13)
+    assert (st == E.STATUS_OK).all()
+    cols = dsys.summarize_batch(per, f)
+    assert set(cols["response_class"]) == {"no_impact", "one_impact", "multi_impact", "irregular"}
+    for i in range(f.size):
+        r, T = per[i], 1.0 / f[i]
+        disp, hits = r[:, E.P_DISP], r[:, E.P_NFRONT] + r[:, E.P_NBACK]
+        xr, vr = r[:, E.P_XR0], r[:, E.P_VR0]
+        sx = max(float(np.ptp(xr)), 1e-6, float(np.max(np.abs(xr))) * 1e-3)
+        sv = max(float(np.ptp(vr)), 1e-3, float(np.max(np.abs(vr))) * 1e-3)
+        pn = next((p for p in range(1, 9) if max(np.abs(xr[p:] - xr[:-p]).max() / sx,
+                                                 np.abs(vr[p:] - vr[:-p]).max() / sv) < 1e-5), 0)
+        wv = np.array([w.sum() / (w.size * T) for w in np.array_split(disp, 4)]) * 1e3
+        cls = ("no_impact" if hits.sum() == 0 else "irregular" if pn == 0
+               else "one_impact" if np.all(hits == 1) else "multi_impact")
+        assert cols["velocity_mm_s"][i] == disp.sum() / (13 * T) * 1e3
+        assert cols["impacts_per_period"][i] == hits.mean()
+        assert cols["period_number"][i] == pn and cols["response_class"][i] == cls
+        assert cols["window_sd_mm_s"][i] == np.std(wv, ddof=1)
+        assert dsys.summarize_periods(r, f[i]) == {k: v[i] for k, v in cols.items()}
+
+
+def test_a_point_asked_for_again_reruns_only_the_conditions_not_run_there(tmp_path, monkeypatch):
+    """A progression bound keeps the conditions run at a parameter point: asked again (a fold's refit from the
+    full fit, the polish from the best start) they are not run again and give the same numbers; a fold's
+    conditions not run at that point are run, alone; another point runs again; rows not asked for stay NaN."""
+    truth = _model(tmp_path, "truth", free_pf=False, params={"Pf_N": 0.02})
+    df = DL.synthesize_progression(truth, DESIGN, NOISE, 2, 1)
+    b = DL.DynBound(_model(tmp_path, "base"), df)
+    runs = []
+    real = dsys.run_many
+
+    def counting(P, *a, **k):
+        runs.append(P.shape[0])
+        return real(P, *a, **k)
+
+    monkeypatch.setattr(dsys, "run_many", counting)
+    fold = np.flatnonzero(b.cond_index < 2)  # the readings of two of the six conditions
+    part = b.simulate([0.02], rows=fold)
+    assert runs == [2] and np.isnan(part["pred"]).sum() == len(df) - fold.size
+    whole = b.simulate([0.02])
+    assert runs == [2, 4]  # the four conditions not run there yet
+    again = b.simulate([0.02], rows=fold)
+    assert runs == [2, 4]
+    np.testing.assert_array_equal(again["pred"][fold], part["pred"][fold])
+    np.testing.assert_array_equal(np.isnan(again["pred"]), np.isnan(part["pred"]))
+    fresh = DL.DynBound(_model(tmp_path, "base"), df).simulate([0.02])
+    np.testing.assert_array_equal(whole["pred"], fresh["pred"])  # the merged runs are the runs of one batch
+    assert list(whole["cls"]) == list(fresh["cls"])
+    b.simulate([0.021], rows=fold)
+    assert runs[2:] == [6, 2]  # the fresh bound's batch of six, then another point: run
+
+
 @pytest.fixture(scope="module")
 def hidden_sdf(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("sdf")

@@ -28,7 +28,7 @@ from .model import (BASE_PARAM_SETS, MODEL_PARAM_NAMES, STEADY_SETTLE_TOL, Capsu
                     Friction, friction_preset, pack_params)
 from .parallel import run_many
 from .run import check_status
-from .sweep import period_number
+from .sweep import period_numbers
 
 #: parameters every dynamics base takes (contract section 4 table); the double-sided base adds BACK_PARAMS
 BASE_PARAMS = ("mass_magnet_g", "mass_capsule_g", "gap_mm", "spring_N_m", "damping_Ns_m", "constraint_N_m", "Pf_N")
@@ -233,15 +233,6 @@ def _conditions(f_Hz, Pd_N, duty, waveform: str, system: DynSystem | None = None
     return f, Pd, D, drives
 
 
-def _response_class(impacts: np.ndarray, pn: int) -> str:
-    """'no_impact' | 'one_impact' | 'multi_impact' | 'irregular' from per-period impact counts."""
-    if impacts.sum() == 0:
-        return "no_impact"
-    if pn == 0:
-        return "irregular"
-    return "one_impact" if np.all(impacts == 1) else "multi_impact"
-
-
 def summarize_periods(per: np.ndarray, f_Hz: float) -> dict:
     """Return the progression row of one condition from its per-period records (engine columns).
 
@@ -249,28 +240,42 @@ def summarize_periods(per: np.ndarray, f_Hz: float) -> dict:
     number of constraint impacts (front and back) per period; period_number: 1..8 (0 irregular);
     window_sd_mm_s: sample SD (ddof 1) of the average velocity of N_WINDOWS equal windows.
     """
-    n = per.shape[0]
-    T = 1.0 / f_Hz
-    disp = per[:, E.P_DISP]
-    impacts = per[:, E.P_NFRONT] + per[:, E.P_NBACK]
-    pn = period_number(per[:, E.P_XR0], per[:, E.P_VR0])
+    cols = summarize_batch(np.asarray(per, float)[None], np.array([float(f_Hz)]))
+    return {k: v[0].item() if isinstance(v[0], np.generic) else v[0] for k, v in cols.items()}
+
+
+def summarize_batch(per: np.ndarray, f_Hz: np.ndarray) -> dict[str, np.ndarray]:
+    """Return :func:`summarize_periods` of each condition as columns, for per of shape (conditions, recorded
+    periods, engine columns) and f_Hz (conditions,) [Hz]; computed for all conditions at once (each row's sums
+    run over a contiguous row, as for one condition alone: the same numbers)."""
+    m, n = per.shape[0], per.shape[1]
+    T = 1.0 / np.asarray(f_Hz, float)
+    disp = np.ascontiguousarray(per[:, :, E.P_DISP])
+    impacts = np.ascontiguousarray(per[:, :, E.P_NFRONT] + per[:, :, E.P_NBACK])
+    pn = period_numbers(np.ascontiguousarray(per[:, :, E.P_XR0]), np.ascontiguousarray(per[:, :, E.P_VR0]))
     # the windows np.array_split makes (the first n % N_WINDOWS one period longer), the empty ones dropped
     q, r = divmod(n, N_WINDOWS)
     ends = np.cumsum([q + 1] * r + [q] * (N_WINDOWS - r))
-    wv = np.array([disp[a:b].sum() / ((b - a) * T) for a, b in zip(np.r_[0, ends[:-1]], ends) if b > a]) * 1e3
+    bounds = [(a, b) for a, b in zip(np.r_[0, ends[:-1]], ends) if b > a]
+    wv = np.empty((m, len(bounds)))
+    for j, (a, b) in enumerate(bounds):
+        wv[:, j] = disp[:, a:b].sum(axis=1) / ((b - a) * T) * 1e3
+    hits = impacts.sum(axis=1)
+    cls = np.where(hits == 0, "no_impact", np.where(pn == 0, "irregular", np.where(np.all(impacts == 1, axis=1),
+                                                                                "one_impact", "multi_impact")))
     return {
-        "velocity_mm_s": float(disp.sum() / (n * T) * 1e3),
-        "impacts_per_period": float(impacts.mean()),
-        "period_number": int(pn),
-        "response_class": _response_class(impacts, pn),
-        "window_sd_mm_s": float(np.std(wv, ddof=1)) if wv.size > 1 else float("nan"),
+        "velocity_mm_s": disp.sum(axis=1) / (n * T) * 1e3,
+        "impacts_per_period": impacts.mean(axis=1),
+        "period_number": pn.astype(int),
+        "response_class": cls.astype(object),
+        "window_sd_mm_s": np.std(wv, axis=1, ddof=1) if len(bounds) > 1 else np.full(m, np.nan),
     }
 
 
-def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmonic",
-                protocol: Protocol = Protocol(), options: EngineOptions | None = None,
-                start_offset_m=None, Pf_N=None) -> pd.DataFrame:
-    """Return one row per condition (same order as the inputs) of the steady progression.
+def progression_columns(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmonic",
+                        protocol: Protocol = Protocol(), options: EngineOptions | None = None,
+                        start_offset_m=None, Pf_N=None) -> dict[str, np.ndarray]:
+    """Return the steady progression per condition (same order as the inputs) as columns (name: array).
 
     Pf_N: Coulomb friction level P_f [N] per condition (scalar or one per condition) instead of the
     system's (a table's ``Pf_N`` column, or a level that depends on a covariate); None: the system's.
@@ -288,14 +293,12 @@ def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmo
     the recorded periods split into 4 windows). Protocol up/down: continuation in f within each
     (P_d, duty), from rest at the first frequency.
     """
-    import pandas as pd
     protocol = protocol.validate()
     f_in, Pd, D, drives = _conditions(f_Hz, Pd_N, duty, waveform, system)
     f = np.array([d.frequency_Hz for d in drives])  # the driven frequency (after plugin transforms)
     n = len(drives)
     if n == 0:
-        return pd.DataFrame(columns=["velocity_mm_s", "impacts_per_period", "period_number", "response_class",
-                                     "window_sd_mm_s"])
+        return summarize_batch(np.zeros((0, 1, E.N_PERIOD_COLS)), np.zeros(0))
     # steady state only: a settled transient ends early (STEADY_SETTLE_TOL unless the options say otherwise)
     opts = replace(options or EngineOptions(settle_tol=STEADY_SETTLE_TOL), energy=False).pack()
     if Pf_N is None:
@@ -340,8 +343,20 @@ def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmo
                              system.model.plugin_forces)
                 results[i] = per_i
                 states[j] = (fin_i[0], fin_i[1], 0.0, fin_i[3])
-    rows = [summarize_periods(results[i], float(f[i])) for i in range(n)]
-    return pd.DataFrame({k: [r[k] for r in rows] for k in rows[0]})
+    return summarize_batch(np.stack(results), f)
+
+
+def progression(system: DynSystem, f_Hz, Pd_N, duty=None, waveform: str = "harmonic",
+                protocol: Protocol = Protocol(), options: EngineOptions | None = None,
+                start_offset_m=None, Pf_N=None) -> pd.DataFrame:
+    """Return one row per condition (same order as the inputs) of the steady progression: the table of
+    :func:`progression_columns` (its arguments and columns)."""
+    import pandas as pd
+    cols = progression_columns(system, f_Hz, Pd_N, duty=duty, waveform=waveform, protocol=protocol,
+                               options=options, start_offset_m=start_offset_m, Pf_N=Pf_N)
+    if cols["velocity_mm_s"].size == 0:
+        return pd.DataFrame(columns=list(cols))
+    return pd.DataFrame(cols)
 
 
 def trajectory(system: DynSystem, f_Hz: float, Pd_N: float, time_s, duty=None, waveform: str = "harmonic",
