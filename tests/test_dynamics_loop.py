@@ -176,6 +176,44 @@ def test_a_point_asked_for_again_reruns_only_the_conditions_not_run_there(tmp_pa
     assert runs[2:] == [6, 2]  # the fresh bound's batch of six, then another point: run
 
 
+def test_a_trajectory_point_asked_for_again_with_the_same_rows_is_not_run_again(tmp_path, monkeypatch):
+    """A trajectory bound keeps its predictions by parameter point and rows: the same point and rows again run
+    no engine and give the same numbers in new arrays (a caller's change to them does not reach the next
+    caller); other rows or another point run."""
+    doc = {"kind": "trajectory", "base": "one_sided", "effects": [], "params": {"Pf_N": 0.02}}
+    (tmp_path / "t.yaml").write_text(yaml.safe_dump(doc))
+    truth = build_model(tmp_path / "t.yaml")
+    design = pd.DataFrame({"run": ["a", "b"], "f_Hz": [30.0, 34.0], "Pd_N": [0.08, 0.10], "duration_s": [0.2, 0.2]})
+    df = DL.synthesize_trajectory(truth, design, 0.05, 100.0, 1)
+    doc["params"] = {"Pf_N": {"value": 0.03, "free": True, "bounds": [0.001, 0.2]}}
+    (tmp_path / "b.yaml").write_text(yaml.safe_dump(doc))
+    b = DL.DynBound(build_model(tmp_path / "b.yaml"), df)
+    runs = []
+    real = dsys.trajectory
+
+    def counting(*a, **k):
+        runs.append(1)
+        return real(*a, **k)
+
+    monkeypatch.setattr(dsys, "trajectory", counting)
+    first = b.simulate([0.02], rows=np.arange(10))
+    n = len(runs)
+    assert n >= 1
+    again = b.simulate([0.02], rows=np.arange(10))
+    assert len(runs) == n
+    np.testing.assert_array_equal(again["pred"], first["pred"])
+    again["pred"][:] = 0.0
+    assert np.array_equal(b.simulate([0.02], rows=np.arange(10))["pred"], first["pred"], equal_nan=True)
+    assert len(runs) == n
+    b.simulate([0.02])
+    assert len(runs) > n
+    m = len(runs)
+    b.simulate([0.021], rows=np.arange(10))
+    assert len(runs) > m
+    # the rows asked for are the observed ones to the noise (the truth's point)
+    assert np.nanmax(np.abs(first["pred"][:10] - b.observed()[:10])) < 5 * 0.05
+
+
 @pytest.fixture(scope="module")
 def hidden_sdf(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("sdf")

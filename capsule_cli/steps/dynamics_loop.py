@@ -153,11 +153,15 @@ def predictable(sim: dict, sd) -> np.ndarray:
         return regular
     return regular & (np.asarray(sim["spread"], float) < MULTISTABLE_SPREAD_FRACTION * float(sd))
 
-#: parameter points whose progression runs a bound keeps (the last asked for): the polish starts where the
-#: Nelder-Mead ended and each fold's refit where the full fit did, so their first point is one run already
-#: (one each-effect diagnose of tests/test_dynamics_loop_each_effect.py: 8 % of its 2034 simulate calls asked
-#: for a point and conditions run before, 12 % of its 19,292 condition runs)
+
+#: parameter points whose runs a bound keeps (the last asked for; at most MEMO_VALUES numbers per array over
+#: them all, the conditions' or rows' predictions): the polish starts where the Nelder-Mead ended and each fold's
+#: refit where the full fit did, so their first point is one run already. One each-effect diagnose of
+#: tests/test_dynamics_loop_each_effect.py: 8 % of its 2034 simulate calls asked for a point and conditions run
+#: before, 12 % of its 19,292 condition runs; a two-candidate trajectory diagnose of six 0.4-s runs
+#: (tests/test_dynamics_loop_fast.py): 305 of its 3626 calls a point and rows asked for before
 MEMO_POINTS = 256
+MEMO_VALUES = 2_000_000
 
 #: Robust first stage of a progression calibration: Cauchy loss c^2 log(1 + (r / c)^2) with
 #: c = ROBUST_SCALE x the noise SD. A few conditions that jump between attractors as a parameter
@@ -263,7 +267,8 @@ class DynBound(FreeParams):
         self.options = None if rk_rtol is None else EngineOptions(rk_rtol=float(rk_rtol), settle_tol=STEADY_SETTLE_TOL)
         self.n_sim = 0  # model evaluations (simulate calls) so far: the budget actually used
         self.last_batch_s = 0.0  # wall time of the last progression batch [s] (engine_threads)
-        #: progression: conditions already run from rest at a parameter point (:meth:`_sim_progression`)
+        #: runs kept by parameter point: a progression's conditions (:meth:`_sim_progression`), a trajectory's
+        #: predictions at given rows (:meth:`simulate`)
         self._memo: OrderedDict = OrderedDict()
         self.kind = model.kind
         self.protocol = protocol_of(model)
@@ -417,7 +422,17 @@ class DynBound(FreeParams):
         self.n_sim += 1
         if self.kind == "progression":
             return self._sim_progression(theta, rows, starts)
-        return self._sim_trajectory(theta, rows, classify, starts)
+        # a point asked for again with the same rows (the horizon continuation and the polish revisit points):
+        # the same run, kept
+        key = (b"" if theta is None else np.asarray(theta, float).tobytes(),
+               None if rows is None else np.asarray(rows, np.int64).tobytes(), bool(classify), bool(starts))
+        hit = self._memo.get(key)
+        if hit is None:
+            hit = self._sim_trajectory(theta, rows, classify, starts)
+            self._keep(key, hit, len(self.rows))
+        else:
+            self._memo.move_to_end(key)
+        return {k: v.copy() if k in ("pred", "spread", "cls") else v for k, v in hit.items()}
 
     def _sim_progression(self, theta, rows=None, starts: bool = False) -> dict:
         self.last_failure = ""  # why the last batch could not be run ("" when it ran)
@@ -479,14 +494,19 @@ class DynBound(FreeParams):
 
     def _remember(self, key, hit, sel: np.ndarray, vel: np.ndarray, spread: np.ndarray, cls: np.ndarray) -> None:
         """Keep the conditions ``sel`` just run at ``key`` (velocity, spread, class; merged into ``hit``, the ones
-        kept there before), the MEMO_POINTS points asked for last."""
+        kept there before) with the points asked for last (:meth:`_keep`)."""
         if hit is None:
             n = len(self.conditions)
             hit = (np.full(n, np.nan), np.full(n, np.nan), np.array(["failed"] * n, dtype=object), np.zeros(n, bool))
         hit[0][sel], hit[1][sel], hit[2][sel], hit[3][sel] = vel[sel], spread[sel], cls[sel], True
-        self._memo[key] = hit
+        self._keep(key, hit, len(self.conditions))
+
+    def _keep(self, key, value, size: int) -> None:
+        """Keep ``value`` (``size`` numbers per array) under ``key`` as the last point asked for: at most
+        MEMO_POINTS points and MEMO_VALUES numbers per array over them all (the oldest go first)."""
+        self._memo[key] = value
         self._memo.move_to_end(key)
-        while len(self._memo) > MEMO_POINTS:
+        while len(self._memo) > max(1, min(MEMO_POINTS, MEMO_VALUES // max(size, 1))):
             self._memo.popitem(last=False)
 
     def condition_pf(self, theta, sysm: dsys.DynSystem) -> np.ndarray | None:
