@@ -157,6 +157,72 @@ def test_plugin_failing_at_run_time_is_exit_2_naming_plugin_and_effect(tmp_path,
     assert not ledger.exists()
 
 
+FORCE_PLUGIN = '''
+from capsule_cli.effects import Param, register_effect
+
+@register_effect(name="{name}", kind="progression", role="force",
+                 params=(Param("pull_mN", start=5.0, bounds=(0.0, 60.0), off=0.0, description="a pull"),),
+                 description="test force", source="test")
+def {name}(t, x_m, v_m, x_c, v_c, p):
+    F = p[0] / (x_m - x_c)  # a user's bug: the magnet-shell distance is zero at rest
+    return F, -F
+'''
+PROGRESSION = "kind: progression\nbase: one_sided\neffects: [{effects}]\nparams:\n{params}\n" \
+              "protocol: {{start: rest, transient_periods: 40, recorded_periods: 16}}\n"
+FREE_PF = "  Pf_N: {value: 0.03, free: true, bounds: [0.001, 0.2]}"
+
+
+def _progression_table(tmp_path: Path, capsys) -> Path:
+    """Six conditions x 2 readings of the base model (P_f 0.02 N) with 0.5 mm/s noise (synth)."""
+    (tmp_path / "truth.yaml").write_text(PROGRESSION.format(effects="", params="  Pf_N: 0.02"))
+    pd.DataFrame({"f_Hz": [30.0, 34.0, 38.0] * 2, "Pd_N": [0.08] * 3 + [0.12] * 3}).to_csv(tmp_path / "design.csv",
+                                                                                        index=False)
+    assert main(["synth", "--model", str(tmp_path / "truth.yaml"), "--design", str(tmp_path / "design.csv"),
+                 "--noise-sd", "0.5", "--replicates", "2", "--seed", "1",
+                 "--out", str(tmp_path / "base_synthetic.csv")]) == 0
+    capsys.readouterr()
+    return tmp_path / "base_synthetic.csv"
+
+
+def test_a_dynamics_model_the_engine_cannot_run_anywhere_is_exit_2_not_a_fit(tmp_path, capsys, clean_registry):
+    """A plugin force that fails at every parameter point (here at rest, whatever its parameter) is bad input:
+    one line naming the plugin, its error and where, and no fit written. Before, compare wrote the penalty as
+    the model's held-out error (cv_rmse=1000, the start values as 95 % intervals) and exited 0."""
+    plug = tmp_path / "plug_pull.py"
+    plug.write_text(FORCE_PLUGIN.format(name="broken_pull"))
+    data = _progression_table(tmp_path, capsys)
+    model = tmp_path / "m.yaml"
+    model.write_text(PROGRESSION.format(effects="broken_pull", params=FREE_PF + "\n  pull_mN: 5.0"))
+    code, err = run(capsys, "compare", "--model", model, "--data", data, "--out", tmp_path / "cmp",
+                    "--plugins", plug, "--effort", "quick")
+    assert code == 2, err
+    assert "could not be run at any of the" in err and "plugin force 'broken_pull'" in err
+    assert "ZeroDivisionError" in err and "t = 0.0 s" in err
+    assert not (tmp_path / "cmp").exists() or not files_under(tmp_path / "cmp")
+
+
+def test_diagnose_leaves_out_a_candidate_it_cannot_run_and_says_why(tmp_path, capsys, clean_registry):
+    """The same plugin force as a candidate of diagnose: not tried, with the reason, in diagnosis.json and the
+    report; the verdict comes from the candidates that ran (nothing is missing from these base-model data)."""
+    plug = tmp_path / "plug_pull.py"
+    plug.write_text(FORCE_PLUGIN.format(name="broken_pull"))
+    data = _progression_table(tmp_path, capsys)
+    model = tmp_path / "m.yaml"
+    model.write_text(PROGRESSION.format(effects="", params=FREE_PF))
+    code, err = run(capsys, "diagnose", "--model", model, "--data", data, "--out", tmp_path / "dg",
+                    "--plugins", plug, "--candidate", "broken_pull", "--candidate", "viscous_drag", "--effort",
+                    "quick", "--no-figures")
+    assert code == 0, err
+    import json
+    d = json.loads((tmp_path / "dg" / "diagnosis.json").read_text())
+    assert [c["effect"] for c in d["candidates"]] == ["viscous_drag"]
+    (skip,) = d["skipped_candidates"]
+    assert skip["effect"] == "broken_pull" and "could not be run at any" in skip["reason"]
+    assert "ZeroDivisionError" in skip["reason"]
+    assert d["verdict"]["outcome"] == "nothing_missing", d["verdict"]["message"]
+    assert "| broken_pull | not tried: " in (tmp_path / "dg" / "diagnosis.md").read_text()
+
+
 # ---------------------------------------------------------------------------
 # synth designs are validated like measurements
 

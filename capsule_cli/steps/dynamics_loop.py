@@ -255,6 +255,12 @@ def _drive_of(d: pd.DataFrame, where: str) -> tuple[float, float, float | None, 
 # the model tied to a table
 
 
+class ModelNotRunnable(InputError):
+    """The engine could not run a model at any parameter point its calibration tried (a plugin force or drive
+    transform that fails everywhere, a parameter set out of the engine's reach): bad input, exit code 2; a
+    candidate effect of diagnose that cannot be run is left out with the reason."""
+
+
 class DynBound(FreeParams):
     """A dynamics model tied to a table: ``simulate(theta)`` gives predictions per comparison row.
 
@@ -266,6 +272,8 @@ class DynBound(FreeParams):
         self.model, self.df, self.where = model, df.reset_index(drop=True), where or "table"
         self.options = None if rk_rtol is None else EngineOptions(rk_rtol=float(rk_rtol), settle_tol=STEADY_SETTLE_TOL)
         self.n_sim = 0  # model evaluations (simulate calls) so far: the budget actually used
+        self.n_ran = 0  # of them, those the engine ran (a prediction came out)
+        self.last_failure = ""  # why the last run that failed could not be run
         self.last_batch_s = 0.0  # wall time of the last progression batch [s] (engine_threads)
         #: runs kept by parameter point: a progression's conditions (:meth:`_sim_progression`), a trajectory's
         #: predictions at given rows (:meth:`simulate`)
@@ -420,6 +428,12 @@ class DynBound(FreeParams):
         stays the one from rest). A trajectory's dict also holds ``noise_factor`` (:func:`row_variance`).
         """
         self.n_sim += 1
+        out = self._simulate(theta, rows, classify, starts)
+        if np.isfinite(out["pred"]).any():
+            self.n_ran += 1
+        return out
+
+    def _simulate(self, theta, rows, classify: bool, starts: bool) -> dict:
         if self.kind == "progression":
             return self._sim_progression(theta, rows, starts)
         # a point asked for again with the same rows (the horizon continuation and the polish revisit points):
@@ -624,7 +638,8 @@ class DynBound(FreeParams):
             summ = self.run_summary(theta) if classify else {}
         except NotImplementedError:
             raise
-        except (InputError, RuntimeError, ValueError, FloatingPointError):
+        except (InputError, RuntimeError, ValueError, FloatingPointError) as exc:
+            self.last_failure = str(exc)
             return {"pred": pred, "spread": spread, "cls": cls, "by_position": by_position, "noise_factor": fac}
         try:
             # run by run, in the rows' order; a run the engine cannot run leaves its rows and every later one NaN
@@ -658,8 +673,8 @@ class DynBound(FreeParams):
                                      else 0.0)
                     if starts:
                         spread[drift] = max(spread[drift], self._drift_start_sd(rs, r, pred[drift]))
-        except (InputError, RuntimeError, ValueError, FloatingPointError):
-            pass  # rows not reached stay NaN (a large penalty in the costs)
+        except (InputError, RuntimeError, ValueError, FloatingPointError) as exc:
+            self.last_failure = str(exc)  # rows not reached stay NaN (a large penalty in the costs)
         return {"pred": pred, "spread": spread, "cls": cls, "by_position": by_position, "noise_factor": fac}
 
     def positions_mm(self, theta, run: str, t_s) -> np.ndarray:
@@ -1317,6 +1332,10 @@ def evaluate(bound: DynBound, sigma: float, folds, groups, x0=None, budget: Budg
     y = bound.observed()
     if fit is None:
         fit = calibrate(bound, y, sigma, None, x0, budget, seed, extra_starts=extra_starts, refit_first=refit_first)
+        if bound.n_ran == 0:
+            raise ModelNotRunnable(f"{bound.where}: model '{bound.model.name}' could not be run at any of the "
+                                   f"{bound.n_sim} parameter points its calibration tried: "
+                                   f"{bound.last_failure or 'every run failed'}")
     sim = bound.simulate(fit.theta, starts=True) if sim is None else sim
     cv_pred = np.empty_like(y)
     cv_spread = np.zeros_like(y)
@@ -3113,7 +3132,7 @@ def _fit_all(model: Model, df, data_path, bound: DynBound, sigma: float, folds, 
         try:
             cands.append(fit_candidate(model, eff, df, base, data_path, budget, seed, previous=prev.get(eff.name),
                                        fitted={c["effect"].name: c["ev"] for c in cands}))
-        except NotImplementedError as exc:
+        except (NotImplementedError, ModelNotRunnable) as exc:
             skipped.append({"effect": eff.name, "reason": str(exc)})
     base, refit_from = consistent_base(base, cands, budget, seed)
     return base, cands, skipped, refit_from
@@ -3351,7 +3370,10 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
         pool |= {pe.name: pe for pe in column_probes(rf, covs, bound.kind)}
         for pe in pool.values():
             if pe.covariates[0] in rf.columns and rf[pe.covariates[0]].nunique() >= 3:
-                probes.append(fit_candidate(model, pe, df, base, data_path, budget, seed))
+                try:
+                    probes.append(fit_candidate(model, pe, df, base, data_path, budget, seed))
+                except ModelNotRunnable as exc:
+                    skipped.append({"effect": pe.name, "reason": str(exc)})
     left = list(outliers_left_out or ())
 
     def diagnose_without(found: list[dict]) -> dict:
