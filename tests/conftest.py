@@ -31,4 +31,3 @@ def run_cli(*args: str, cwd: str | os.PathLike | None = None) -> subprocess.Comp
 def cli():
     """The ``run_cli`` helper as a fixture."""
     return run_cli
-

@@ -51,26 +51,16 @@ def period_number(xr: np.ndarray, vr: np.ndarray, max_period: int = 8, rel_tol: 
 
     Points are compared relative to the spread of the response (or 1 um, 1 mm/s floors).
     """
-    return int(period_numbers(np.asarray(xr, float)[None, :], np.asarray(vr, float)[None, :], max_period,
-                              rel_tol)[0])
-
-
-def period_numbers(xr: np.ndarray, vr: np.ndarray, max_period: int = 8, rel_tol: float = 1e-5) -> np.ndarray:
-    """Return :func:`period_number` of each row of xr, vr (shape (conditions, recorded periods); x_r [m], v_r
-    [m/s] at phase 0) as an int array, computed for all rows at once (the same numbers: max, min and one
-    division per element are exact or rounded alike whatever the batch)."""
-    n_rows, n = xr.shape
-    out = np.zeros(n_rows, dtype=np.int64)
-    if n < 2 or n_rows == 0:
-        return out
-    sx = np.maximum(np.maximum(np.ptp(xr, axis=1), 1e-6), np.max(np.abs(xr), axis=1) * 1e-3)
-    sv = np.maximum(np.maximum(np.ptp(vr, axis=1), 1e-3), np.max(np.abs(vr), axis=1) * 1e-3)
-    for p in range(min(max_period, n - 1), 0, -1):  # the smallest p wins: written last
+    n = len(xr)
+    if n < 2:
+        return 0
+    sx = max(float(np.ptp(xr)), 1e-6, float(np.max(np.abs(xr))) * 1e-3)
+    sv = max(float(np.ptp(vr)), 1e-3, float(np.max(np.abs(vr))) * 1e-3)
+    for p in range(1, min(max_period, n - 1) + 1):
         # max(|a|) / s is max(|a| / s) exactly (division by s > 0 is monotone in rounding too)
-        ok = np.maximum(np.abs(xr[:, p:] - xr[:, :-p]).max(axis=1) / sx,
-                        np.abs(vr[:, p:] - vr[:, :-p]).max(axis=1) / sv) < rel_tol
-        out[ok] = p
-    return out
+        if max(np.abs(xr[p:] - xr[:-p]).max() / sx, np.abs(vr[p:] - vr[:-p]).max() / sv) < rel_tol:
+            return p
+    return 0
 
 
 @dataclass

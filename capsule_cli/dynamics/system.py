@@ -26,9 +26,8 @@ from ..errors import InputError, PluginError
 from . import engine as E
 from .model import (BASE_PARAM_SETS, MODEL_PARAM_NAMES, STEADY_SETTLE_TOL, CapsuleModel, Drive, EngineOptions,
                     Friction, friction_preset, pack_params)
-from .parallel import run_many
+from .parallel import period_numbers, run_many
 from .run import check_status
-from .sweep import period_numbers
 
 #: parameters every dynamics base takes (contract section 4 table); the double-sided base adds BACK_PARAMS
 BASE_PARAMS = ("mass_magnet_g", "mass_capsule_g", "gap_mm", "spring_N_m", "damping_Ns_m", "constraint_N_m", "Pf_N")
