@@ -255,6 +255,11 @@ def _drive_of(d: pd.DataFrame, where: str) -> tuple[float, float, float | None, 
 # the model tied to a table
 
 
+def _point(theta) -> bytes:
+    """Return the key of a parameter point (b"" for the model file's values) for the runs a bound keeps."""
+    return b"" if theta is None else np.asarray(theta, float).tobytes()
+
+
 class ModelNotRunnable(InputError):
     """The engine could not run a model at any parameter point its calibration tried (a plugin force or drive
     transform that fails everywhere, a parameter set out of the engine's reach): bad input, exit code 2; a
@@ -438,8 +443,8 @@ class DynBound(FreeParams):
             return self._sim_progression(theta, rows, starts)
         # a point asked for again with the same rows (the horizon continuation and the polish revisit points):
         # the same run, kept
-        key = (b"" if theta is None else np.asarray(theta, float).tobytes(),
-               None if rows is None else np.asarray(rows, np.int64).tobytes(), bool(classify), bool(starts))
+        key = (_point(theta), None if rows is None else np.asarray(rows, np.int64).tobytes(), bool(classify),
+               bool(starts))
         hit = self._memo.get(key)
         if hit is None:
             hit = self._sim_trajectory(theta, rows, classify, starts)
@@ -462,43 +467,38 @@ class DynBound(FreeParams):
             need[np.unique(self.cond_index[np.asarray(rows, int)])] = True
         # a point asked for again (a fold's refit starts at the full fit, the polish at the best start): only the
         # conditions not run there yet (each condition's run is its own, whatever the batch: the same numbers)
-        key, hit = None, None
-        if not starts:
-            key = (b"" if theta is None else np.asarray(theta, float).tobytes(), self.protocol, repr(self.options))
-            hit = self._memo.get(key)
+        key = None if starts else (_point(theta), self.protocol, repr(self.options))
+        hit = None if key is None else self._memo.get(key)
         todo = need if hit is None else need & ~hit[3]
         if hit is not None and not todo.any():
             self._memo.move_to_end(key)
+        else:
+            sel = np.flatnonzero(todo)
+            try:
+                sysm = self.system(theta)
+                pfs = self.condition_pf(theta, sysm)
+                f, pdn, du, wf = self._cond_drive
+                per = sel.size * (self.protocol.transient_periods + self.protocol.recorded_periods)
+                t0 = time.perf_counter()
+                with engine_threads(per, self.last_batch_s):
+                    out = dsys.progression_columns(sysm, f[sel], pdn[sel], duty=None if du is None else du[sel],
+                                                   waveform=wf if isinstance(wf, str) else wf[sel],
+                                                   protocol=self.protocol, options=self.options,
+                                                   Pf_N=None if pfs is None else pfs[sel])
+                self.last_batch_s = time.perf_counter() - t0
+            except NotImplementedError:
+                raise
+            except (InputError, RuntimeError, ValueError, FloatingPointError) as exc:
+                self.last_failure = str(exc)
+                ci = self.cond_index
+                return {"pred": vel[ci], "spread": spread[ci], "cls": cls[ci]}
+            vel[sel] = out["velocity_mm_s"]
+            cls[sel] = out["response_class"]
+            spread[sel] = np.where(cls[sel] == "irregular", out["window_sd_mm_s"] / 2, 0.0)
+            if key is not None:
+                hit = self._remember(key, hit, sel, vel, spread, cls)
+        if hit is not None:  # the conditions asked for, run now or before at this point
             vel[need], spread[need], cls[need] = hit[0][need], hit[1][need], hit[2][need]
-            ci = self.cond_index
-            return {"pred": vel[ci], "spread": spread[ci], "cls": cls[ci]}
-        sel = np.flatnonzero(todo)
-        try:
-            sysm = self.system(theta)
-            pfs = self.condition_pf(theta, sysm)
-            f, pdn, du, wf = self._cond_drive
-            per = sel.size * (self.protocol.transient_periods + self.protocol.recorded_periods)
-            t0 = time.perf_counter()
-            with engine_threads(per, self.last_batch_s):
-                out = dsys.progression_columns(sysm, f[sel], pdn[sel], duty=None if du is None else du[sel],
-                                               waveform=wf if isinstance(wf, str) else wf[sel],
-                                               protocol=self.protocol, options=self.options,
-                                               Pf_N=None if pfs is None else pfs[sel])
-            self.last_batch_s = time.perf_counter() - t0
-        except NotImplementedError:
-            raise
-        except (InputError, RuntimeError, ValueError, FloatingPointError) as exc:
-            self.last_failure = str(exc)
-            ci = self.cond_index
-            return {"pred": vel[ci], "spread": spread[ci], "cls": cls[ci]}
-        vel[sel] = out["velocity_mm_s"]
-        cls[sel] = out["response_class"]
-        spread[sel] = np.where(cls[sel] == "irregular", out["window_sd_mm_s"] / 2, 0.0)
-        if key is not None:
-            self._remember(key, hit, sel, vel, spread, cls)
-            if hit is not None:
-                old = need & hit[3]
-                vel[old], spread[old], cls[old] = hit[0][old], hit[1][old], hit[2][old]
         if starts:
             # every condition: a periodic response can coexist with another attractor (multistable),
             # reached from a start a few um away or after a small change of a parameter
@@ -506,14 +506,15 @@ class DynBound(FreeParams):
         ci = self.cond_index
         return {"pred": vel[ci], "spread": spread[ci], "cls": cls[ci]}
 
-    def _remember(self, key, hit, sel: np.ndarray, vel: np.ndarray, spread: np.ndarray, cls: np.ndarray) -> None:
+    def _remember(self, key, hit, sel: np.ndarray, vel: np.ndarray, spread: np.ndarray, cls: np.ndarray) -> tuple:
         """Keep the conditions ``sel`` just run at ``key`` (velocity, spread, class; merged into ``hit``, the ones
-        kept there before) with the points asked for last (:meth:`_keep`)."""
+        kept there before) with the points asked for last (:meth:`_keep`); return the record kept."""
         if hit is None:
             n = len(self.conditions)
             hit = (np.full(n, np.nan), np.full(n, np.nan), np.array(["failed"] * n, dtype=object), np.zeros(n, bool))
         hit[0][sel], hit[1][sel], hit[2][sel], hit[3][sel] = vel[sel], spread[sel], cls[sel], True
         self._keep(key, hit, len(self.conditions))
+        return hit
 
     def _keep(self, key, value, size: int) -> None:
         """Keep ``value`` (``size`` numbers per array) under ``key`` as the last point asked for: at most
