@@ -1176,6 +1176,43 @@ def test_intervals_come_from_the_fit_plus_the_noise(monkeypatch):
     assert np.std(np.array([e for e, _ in seen])[:, frames]) == pytest.approx(s_fit, rel=0.03)
 
 
+def test_bootstrap_draws_are_the_same_for_the_same_data_and_independent_between_data_sets(monkeypatch):
+    """The bootstrap's noise comes from a stream seeded by the seed and the data (data_stream): the same data and
+    seed give the same draws (reproducible), another data set (one value changed) independent ones. Seeded by the
+    seed alone every data set drew the same 20 vectors, and a viscous drag's standard errors were 18 % low on
+    all of them alike (218 of 240 intervals held the truth; data_stream's docstring)."""
+    n = 200
+    pred = np.linspace(-1.0, 1.0, n)
+    lin = SimpleNamespace(key="Pf_N", bounds=(0.0, 1.0), param=SimpleNamespace(log_from=None))
+    bound = SimpleNamespace(free=[lin], bounds=(np.array([0.0]), np.array([1.0])), kind="progression")
+    seen = []
+
+    def refit(bound_, y, *args, **kw):
+        seen.append(np.asarray(y) - pred)
+        return SimpleNamespace(theta=np.array([0.5 + 0.01 * len(seen)]))
+
+    monkeypatch.setattr(DL, "calibrate", refit)
+
+    def draws(y, seed=0):
+        ev = SimpleNamespace(groups=np.arange(n), bound=bound, y=y, sigma=0.5, k=1, resid=np.zeros(n),
+                             theta=np.array([0.5]), fit=SimpleNamespace(weights=None),
+                             sim={"pred": pred, "spread": np.zeros(n), "cls": np.array(["period_1"] * n)})
+        seen.clear()
+        DL.bootstrap_intervals(ev, 5, QUICK, seed)
+        return np.array(seen)
+
+    y = pred + 0.5 * np.random.default_rng(3).standard_normal(n)
+    first, again = draws(y), draws(y.copy())
+    assert np.array_equal(first, again)
+    assert np.std(first) == pytest.approx(0.5, rel=0.05)
+    y2 = y.copy()
+    y2[7] += 1e-9
+    other = draws(y2)
+    r = np.corrcoef(first.ravel(), other.ravel())[0, 1]
+    assert abs(r) < 4.0 / math.sqrt(first.size)  # independent: |r| ~ 1 / sqrt(1000); the same stream gives 1
+    assert not np.array_equal(draws(y, seed=1), first)
+
+
 def test_residual_figure_draws_a_drift_row_apart_from_the_frames(tmp_path):
     """A trajectory run compared by its drift over whole periods has one residual (35.8 mm here) that is not a
     frame's: the figure draws it in a panel of its own, so the frames' axis keeps the position residuals only."""
