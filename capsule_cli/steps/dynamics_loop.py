@@ -1535,7 +1535,7 @@ def bootstrap_intervals(ev: DynEvaluation, n: int, budget: Budget, seed: int, rh
     run both ways: 11 of 12 either way, RMS 1.13-1.25 against 1.32-1.35 resampling the conditions). Those
     counts drew every data set's noise from one stream; drawn from a stream of the seed and the data
     (:func:`data_stream`), the drag case over 240 data sets (benchmarks/dynamics_interval_coverage.py): 225 of
-    240 for each parameter (93.8 %, Clopper-Pearson 89.9-96.5 %), against 228 and 218 of 240 from one stream.
+    240 for each parameter (93.8 %, Clopper-Pearson 89.9-96.5 %; from one stream: :func:`data_stream`).
     The SEs are still 5-9 % below the SD of the fits over the data sets (3.07e-5 against 3.37e-5 N, 2.24e-4
     against 2.36e-4 N s/m); a likely part of it: a cold fit lands up to 0.4 SE away from where another Sobol seed
     lands it on some data sets (a rugged cost), and a warm refit does not repeat that landing. The speed-law
