@@ -93,6 +93,13 @@ def with_glitches(df: pd.DataFrame, k: int, seed: int) -> tuple[pd.DataFrame, li
     return df, rows
 
 
+def held_out_runs(r: dict) -> dict:
+    """Return the models whose "held out if it were true" bootstrap ran in diagnosis ``r``: {name: mean [unit]}."""
+    recs = {"as is": r["model_as_is"].get("held_out_if_true")}
+    recs |= {c["effect"]: c.get("held_out_if_true") for c in r["candidates"]}
+    return {k: v["mean"] for k, v in recs.items() if v}
+
+
 def run(seeds: int, effort: str, candidates: list[str] | None, out: str | None, first_seed: int = 0,
         replicates: int = 2, start: str = "rest", designs: tuple[str, ...] = ("six", "ten"),
         kind: str = "progression", position_noise_mm: float = POS_NOISE, glitch_frames: int = 0) -> dict:
@@ -118,7 +125,8 @@ def run(seeds: int, effort: str, candidates: list[str] | None, out: str | None, 
             v = r["verdict"]
             rows.append({"seed": s, "design": dname, "outcome": v["outcome"], "missing_effect": v["missing_effect"],
                          "covariate": v["covariate"], "noise_sd": r["noise"]["sd"],
-                         "cv_rmse": r["model_as_is"]["cv_rmse"], "seconds": time.perf_counter() - t1})
+                         "cv_rmse": r["model_as_is"]["cv_rmse"], "seconds": time.perf_counter() - t1,
+                         "held_out_if_true": held_out_runs(r)})
             if traj and glitch_frames:
                 rows[-1] |= {"glitched_rows": glitched, "flagged_rows": sorted(o["row"] for o in r["outliers"])}
             print(f"seed {s} ({dname}): {v['outcome']} {v['missing_effect'] or v['covariate'] or ''}", flush=True)

@@ -159,6 +159,10 @@ def main() -> None:
                                                        for c in r.get("candidates", [])},
                              "candidate_seconds": {c["effect"]: round(c["seconds"], 1)
                                                    for c in r.get("candidates", [])},
+                             "held_out_if_true": {k: h["mean"] for k, h in
+                                                  [("as is", r["model_as_is"].get("held_out_if_true"))]
+                                                  + [(c["effect"], c.get("held_out_if_true"))
+                                                     for c in r.get("candidates", [])] if h},
                              "message": v["message"], "seconds": round(time.perf_counter() - t1, 1)})
                 print(f"{case} seed {seed}: {said} ({'right' if rows[-1]['right'] else 'WRONG'})", flush=True)
                 rec = {"what": f"power of the dynamics diagnose on {a.kind} data shaped like issue 12's checks",

@@ -1213,6 +1213,47 @@ def test_bootstrap_draws_are_the_same_for_the_same_data_and_independent_between_
     assert not np.array_equal(draws(y, seed=1), first)
 
 
+def test_held_out_if_true_draws_are_the_same_for_the_same_data_and_independent_between_data_sets(monkeypatch):
+    """The "held out if it were true" bootstrap (held_out_of_truth) draws from data_stream too: the same data and
+    seed give the same draws, another data set independent ones. Seeded by ``seed + 7`` alone, every data set of a
+    benchmark (the power benchmark passes seed 0 to all) drew the same 12 vectors, and with them the same error
+    in the expectation its verdict is weighed against."""
+    n = 120
+    pred = np.linspace(-1.0, 1.0, n)
+    lin = SimpleNamespace(key="Pf_N", bounds=(0.0, 1.0), param=SimpleNamespace(log_from=None))
+    seen = []
+
+    def refit(bound_, y, sigma, train, *args, **kw):
+        if train is None:  # the all-rows refit of each draw (the folds' refits follow warm from it)
+            seen.append(np.asarray(y) - pred)
+        return SimpleNamespace(theta=np.array([0.5]))
+
+    monkeypatch.setattr(DL, "calibrate", refit)
+    bound = SimpleNamespace(free=[lin], kind="trajectory", simulate=lambda th, rows, classify=False: {"pred": pred})
+
+    def draws(y, seed=0):
+        ev = SimpleNamespace(bound=bound, y=y, sigma=0.5, theta=np.array([0.5]), fit=SimpleNamespace(weights=None),
+                             folds=np.arange(n) % 3, cv_spread=None, sim={"pred": pred, "spread": np.zeros(n)})
+        seen.clear()
+        mean, sd, k = DL.held_out_of_truth(ev, QUICK, seed, draws=6)
+        assert k == 6 and len(seen) == 6
+        return np.array(seen)
+
+    y = pred + 0.5 * np.random.default_rng(5).standard_normal(n)
+    first, again = draws(y), draws(y.copy())
+    assert np.array_equal(first, again)
+    assert np.std(first) == pytest.approx(0.5, rel=0.1)  # 720 draws: the SD is known to 2.6 %
+    y2 = y.copy()
+    y2[11] += 1e-9
+    other = draws(y2)
+    r = np.corrcoef(first.ravel(), other.ravel())[0, 1]
+    assert abs(r) < 4.0 / math.sqrt(first.size)  # independent: |r| ~ 1 / sqrt(720); the same stream gives 1
+    assert not np.array_equal(draws(y, seed=1), first)
+    # and not the intervals' stream (another salt) on the same data and seed
+    assert np.allclose(first, DL.data_stream(0, y, 7).standard_normal((6, n)) * 0.5)
+    assert not np.allclose(first, DL.data_stream(0, y, 1).standard_normal((6, n)) * 0.5)
+
+
 def test_residual_figure_draws_a_drift_row_apart_from_the_frames(tmp_path):
     """A trajectory run compared by its drift over whole periods has one residual (35.8 mm here) that is not a
     frame's: the figure draws it in a panel of its own, so the frames' axis keeps the position residuals only."""

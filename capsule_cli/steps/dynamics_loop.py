@@ -1587,8 +1587,9 @@ def bootstrap_intervals(ev: DynEvaluation, n: int, budget: Budget, seed: int, rh
 
 def data_stream(seed: int, y: np.ndarray, salt: int) -> np.random.Generator:
     """Return the random stream of a parametric bootstrap on the response ``y`` [response unit]: seeded by
-    ``seed``, ``salt`` (which bootstrap) and a digest of ``y``'s values, so that the same data and seed give the
-    same draws and two data sets give independent ones.
+    ``seed``, ``salt`` (which bootstrap: 1 for :func:`bootstrap_intervals`, 7 for :func:`held_out_of_truth`) and
+    a digest of ``y``'s values, so that the same data and seed give the same draws and two data sets give
+    independent ones.
 
     Why the data: seeded by ``seed`` alone, every data set drew the same noise vectors, and the luck of those
     20 vectors was the same for all of them (the interval's t quantile allows for the SD of n refits varying
@@ -1634,7 +1635,9 @@ def held_out_of_truth(ev: DynEvaluation, budget: Budget, seed: int, draws: int =
     (:func:`noise_draw`: each row's SD from :func:`row_variance`, a frame's noise, a drift's, the model's spread),
     refits all rows
     and then each fold warm from the fit (as :func:`evaluate` does) and scores the held-out rows as ``ev``'s
-    are scored. None when nothing is free or the fit has no prediction somewhere.
+    are scored. The draws come from :func:`data_stream` (``seed`` and the data), so two data sets do not share
+    one set of 12 draws and with it one error in the expectation. None when nothing is free or the fit has no
+    prediction somewhere.
 
     Why: a held-out trajectory run is predicted with parameters fitted to the other runs; over a few runs a run
     the others do not pin down is missed by those parameters' error, growing along the run, which the linear
@@ -1647,7 +1650,7 @@ def held_out_of_truth(ev: DynEvaluation, budget: Budget, seed: int, draws: int =
     if not b.free or not np.all(np.isfinite(pred)):
         return None
     sig = ev.sigma
-    rng = np.random.default_rng(seed + 7)
+    rng = data_stream(seed, ev.y, 7)
     spread = np.zeros_like(pred) if ev.cv_spread is None else ev.cv_spread
     var_cv = row_variance(sig, {"spread": spread, "noise_factor": ev.sim.get("noise_factor")}) * np.ones(pred.size)
     w = sig ** 2 / var_cv if sig > 0 else np.ones_like(pred)
