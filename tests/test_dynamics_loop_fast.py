@@ -1201,16 +1201,23 @@ def test_bootstrap_draws_are_the_same_for_the_same_data_and_independent_between_
         DL.bootstrap_intervals(ev, 5, QUICK, seed)
         return np.array(seen)
 
-    y = pred + 0.5 * np.random.default_rng(3).standard_normal(n)
+    _assert_seeded_by_the_data(draws, pred + 0.5 * np.random.default_rng(3).standard_normal(n), 0.5, rel=0.05)
+
+
+def _assert_seeded_by_the_data(draws, y, sd, rel):
+    """Assert what data_stream promises of a bootstrap's noise draws (``draws(y, seed)``: the draws as rows):
+    the same data and seed give the same draws, of SD ``sd`` (to ``rel``); one value changed by 1e-9 gives
+    independent draws (|r| ~ 1 / sqrt(size); one shared stream gives 1); another seed gives other draws.
+    Returns the draws on ``y`` at seed 0."""
     first, again = draws(y), draws(y.copy())
     assert np.array_equal(first, again)
-    assert np.std(first) == pytest.approx(0.5, rel=0.05)
+    assert np.std(first) == pytest.approx(sd, rel=rel)
     y2 = y.copy()
     y2[7] += 1e-9
-    other = draws(y2)
-    r = np.corrcoef(first.ravel(), other.ravel())[0, 1]
-    assert abs(r) < 4.0 / math.sqrt(first.size)  # independent: |r| ~ 1 / sqrt(1000); the same stream gives 1
+    r = np.corrcoef(first.ravel(), draws(y2).ravel())[0, 1]
+    assert abs(r) < 4.0 / math.sqrt(first.size)
     assert not np.array_equal(draws(y, seed=1), first)
+    return first
 
 
 def test_held_out_if_true_draws_are_the_same_for_the_same_data_and_independent_between_data_sets(monkeypatch):
@@ -1240,16 +1247,8 @@ def test_held_out_if_true_draws_are_the_same_for_the_same_data_and_independent_b
         return np.array(seen)
 
     y = pred + 0.5 * np.random.default_rng(5).standard_normal(n)
-    first, again = draws(y), draws(y.copy())
-    assert np.array_equal(first, again)
-    assert np.std(first) == pytest.approx(0.5, rel=0.1)  # 720 draws: the SD is known to 2.6 %
-    y2 = y.copy()
-    y2[11] += 1e-9
-    other = draws(y2)
-    r = np.corrcoef(first.ravel(), other.ravel())[0, 1]
-    assert abs(r) < 4.0 / math.sqrt(first.size)  # independent: |r| ~ 1 / sqrt(720); the same stream gives 1
-    assert not np.array_equal(draws(y, seed=1), first)
-    # and not the intervals' stream (another salt) on the same data and seed
+    first = _assert_seeded_by_the_data(draws, y, 0.5, rel=0.1)  # 720 draws: the SD is known to 2.6 %
+    # its own stream, not the intervals' (another salt) on the same data and seed
     assert np.allclose(first, DL.data_stream(0, y, 7).standard_normal((6, n)) * 0.5)
     assert not np.allclose(first, DL.data_stream(0, y, 1).standard_normal((6, n)) * 0.5)
 
