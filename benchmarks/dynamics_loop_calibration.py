@@ -69,6 +69,11 @@ TRAJECTORY_DESIGNS = {
     # few long runs: each held out is predicted by two others that pin the friction level down less
     "long3": pd.DataFrame({"run": ["a", "b", "c"], "f_Hz": [22.0, 30.0, 38.0], "Pd_N": [0.15, 0.20, 0.25],
                            "duration_s": [3.0] * 3}),
+    # one 1.5-s run and two of four frames: held out, the long run is predicted with a friction level fitted to
+    # eight frames, so a correct model is held out above the linear expectation and "nothing is missing" rests on
+    # the design's own expectation (held_out_of_truth; tests/test_dynamics_loop_held_out.py)
+    "long1short2": pd.DataFrame({"run": ["long", "s1", "s2"], "f_Hz": [30.0, 34.0, 38.0], "Pd_N": [0.2, 0.15, 0.15],
+                                 "duration_s": [1.5, 0.03, 0.03]}),
 }
 
 

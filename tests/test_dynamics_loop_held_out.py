@@ -105,6 +105,23 @@ def test_nothing_missing_weighs_the_held_out_error_against_the_designs_own(expec
         assert "12 draws" in v.message
 
 
+@pytest.mark.parametrize("draws, z", [(12, 2.3469), (4, 3.6971), (1000, 2.0035)])
+def test_the_designs_expectation_bounds_the_held_out_error_as_one_more_draw(draws, z):
+    # the data's held-out RMSE is one more value of what the bootstrap samples, whose mean and SD come from a few
+    # draws: the bound is t(n - 1) sqrt(1 + 1/n) SDs at EXCESS_Z's one-sided level (normal 0.97725; z values from
+    # scipy.stats.t.ppf(0.97725, n - 1) * sqrt(1 + 1 / n)), tending to EXCESS_Z with many draws
+    expect, se, got, words = V.design_excess((0.14, 0.02, draws), 0.1, V.Noise(0.1, 0.0))
+    assert (expect, se) == (0.14, 0.02)
+    assert got == pytest.approx(z, abs=5e-4)
+    assert f"t quantile of {draws - 1} degrees of freedom" in words
+    # held out at 2.2 SDs above the mean of 12 draws: within the bound (EXCESS_Z alone called it an excess)
+    if draws == 12:
+        y, groups = np.zeros(300), np.repeat([0, 1, 2], 100)
+        base = _summary("", 1, 0.14 + 2.2 * 0.02, expected=(0.14, 0.02, 12))
+        v = V.decide_verdict(y, base, [], V.Noise(0.1, 0.0), {}, [], groups, 3, unit="mm")
+        assert v.outcome == "nothing_missing", v.message
+
+
 def test_a_chaotic_runs_drift_spreads_over_starting_states_and_that_enters_its_error(tmp_path):
     # contract base (P_f 0.0078 N), 22 Hz / 0.15 N for 3 s from rest: an irregular response whose path from rest
     # parts from the paths 1-10 um off within 0.2 s; its drift over 3 s moves by about a millimetre with the start,
