@@ -101,7 +101,7 @@ def with_glitches(df: pd.DataFrame, k: int, seed: int) -> tuple[pd.DataFrame, li
 def held_out_runs(r: dict) -> dict:
     """Return the models whose "held out if it were true" bootstrap ran in diagnosis ``r``: {name: mean [unit]}."""
     recs = {"as is": r["model_as_is"].get("held_out_if_true")}
-    recs |= {c["effect"]: c.get("held_out_if_true") for c in r["candidates"]}
+    recs |= {c["effect"]: c.get("held_out_if_true") for c in r.get("candidates", [])}
     return {k: v["mean"] for k, v in recs.items() if v}
 
 

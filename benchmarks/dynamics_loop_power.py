@@ -44,6 +44,9 @@ from capsule_cli.effects import registry  # noqa: E402
 from capsule_cli.effects.model import build_model  # noqa: E402
 from capsule_cli.steps import dynamics_loop as DL  # noqa: E402
 
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from dynamics_loop_calibration import held_out_runs  # noqa: E402
+
 PF_N = 0.0078  # the contract's base friction level (physics.md section 3, seed 000 section 5.3)
 PROTOCOL = {"start": "rest", "transient_periods": 120, "recorded_periods": 60}
 PROGRESSION_NOISE = 0.5  # mm/s
@@ -159,10 +162,7 @@ def main() -> None:
                                                        for c in r.get("candidates", [])},
                              "candidate_seconds": {c["effect"]: round(c["seconds"], 1)
                                                    for c in r.get("candidates", [])},
-                             "held_out_if_true": {k: h["mean"] for k, h in
-                                                  [("as is", r["model_as_is"].get("held_out_if_true"))]
-                                                  + [(c["effect"], c.get("held_out_if_true"))
-                                                     for c in r.get("candidates", [])] if h},
+                             "held_out_if_true": held_out_runs(r),
                              "message": v["message"], "seconds": round(time.perf_counter() - t1, 1)})
                 print(f"{case} seed {seed}: {said} ({'right' if rows[-1]['right'] else 'WRONG'})", flush=True)
                 rec = {"what": f"power of the dynamics diagnose on {a.kind} data shaped like issue 12's checks",
