@@ -425,6 +425,12 @@ def noise_expectation(noise_sd: float, noise_se: float | None, cv_se: float, n: 
     return expect, math.hypot(cv_se if np.isfinite(cv_se) else 0.0, (noise_se or 0.0) * root)
 
 
+def excess_t(dof: float) -> float:
+    """Return the t quantile of ``dof`` degrees of freedom at EXCESS_Z's one-sided normal level (0.97725): how
+    many estimated standard errors count as an excess when the SE itself comes from few values."""
+    return dist.t_ppf(dist.norm_cdf(EXCESS_Z), dof)
+
+
 def winner_excess(sq_err: np.ndarray, groups: np.ndarray, noise: "Noise", n: int, k: int, n_folds: int
                   ) -> tuple[float, float, float, str]:
     """Return (held-out RMSE expected from the noise, standard error of the comparison, how many standard
@@ -444,7 +450,7 @@ def winner_excess(sq_err: np.ndarray, groups: np.ndarray, noise: "Noise", n: int
     z, over = EXCESS_Z, ""
     if few is not None and np.isfinite(few[0]):
         cv_se = max(cv_se, few[0])
-        z = dist.t_ppf(dist.norm_cdf(EXCESS_Z), few[1])
+        z = excess_t(few[1])
         over = f", over {few[1] + 1} groups: t quantile of {few[1]} degrees of freedom"
     expect, se = noise_expectation(noise.sd, noise.se, cv_se, n, k, n_folds)
     return expect, se, z, over
@@ -476,8 +482,7 @@ def design_excess(cv_expected: tuple[float, float, int], expect_linear: float, n
     mean, sd, draws = cv_expected
     expect = max(float(mean), float(expect_linear)) if np.isfinite(expect_linear) else float(mean)
     rel = (noise.se or 0.0) / noise.sd if noise.sd and np.isfinite(noise.sd) and noise.sd > 0 else 0.0
-    z = (dist.t_ppf(dist.norm_cdf(EXCESS_Z), int(draws) - 1) * math.sqrt(1.0 + 1.0 / int(draws)) if int(draws) > 1
-         else EXCESS_Z)
+    z = excess_t(int(draws) - 1) * math.sqrt(1.0 + 1.0 / int(draws)) if int(draws) > 1 else EXCESS_Z
     return (expect, math.hypot(float(sd), rel * expect), z,
             f"parametric bootstrap, {draws} draws: {_g(mean)} ± {_g(sd)}, bounded as one more draw (t quantile of "
             f"{int(draws) - 1} degrees of freedom x sqrt(1 + 1/{draws})); held out, a run is predicted with parameters "
