@@ -99,10 +99,11 @@ def with_glitches(df: pd.DataFrame, k: int, seed: int) -> tuple[pd.DataFrame, li
 
 
 def held_out_runs(r: dict) -> dict:
-    """Return the models whose "held out if it were true" bootstrap ran in diagnosis ``r``: {name: mean [unit]}."""
+    """Return the models whose "held out if it were true" bootstrap ran in diagnosis ``r``: {name: {mean [unit],
+    draws, as_high (draws at least the data's held-out RMSE)}}."""
     recs = {"as is": r["model_as_is"].get("held_out_if_true")}
     recs |= {c["effect"]: c.get("held_out_if_true") for c in r.get("candidates", [])}
-    return {k: v["mean"] for k, v in recs.items() if v}
+    return {k: {"mean": v["mean"], "draws": v["draws"], "as_high": v["as_high"]} for k, v in recs.items() if v}
 
 
 def run(seeds: int, effort: str, candidates: list[str] | None, out: str | None, first_seed: int = 0,

@@ -67,10 +67,10 @@ def test_held_out_of_a_correct_model_is_the_noise_where_the_runs_pin_each_other_
     # three runs at one drive: each is predicted by the other two as well as by itself
     design = pd.DataFrame({"run": ["a", "b", "c"], "f_Hz": 34.0, "Pd_N": 0.15, "duration_s": 0.4})
     ev, budget = _evaluate(tmp_path, design, 1)
-    mean, sd, draws = DL.held_out_of_truth(ev, budget, 0, draws=8)
-    assert draws == 8 and sd > 0
+    dd = DL.held_out_of_truth(ev, budget, 0, draws=8, most=8)
+    assert dd.draws == 8 and dd.sd > 0
     # linear model: sqrt(1 + k / n_train) = 1.012 of the noise; 8 draws of an RMSE over 123 frames
-    assert 0.9 * POS_NOISE < mean < 1.12 * POS_NOISE
+    assert 0.9 * POS_NOISE < dd.mean < 1.12 * POS_NOISE
 
 
 def test_held_out_of_a_correct_model_exceeds_the_noise_where_a_run_is_not_pinned_down(tmp_path):
@@ -79,11 +79,11 @@ def test_held_out_of_a_correct_model_exceeds_the_noise_where_a_run_is_not_pinned
     design = pd.DataFrame({"run": ["long", "s1", "s2"], "f_Hz": [30.0, 34.0, 38.0], "Pd_N": [0.2, 0.15, 0.15],
                            "duration_s": [1.5, 0.03, 0.03]})
     ev, budget = _evaluate(tmp_path, design, 2)
-    mean, sd, _ = DL.held_out_of_truth(ev, budget, 0, draws=8)
+    dd = DL.held_out_of_truth(ev, budget, 0, draws=8, most=8)
     linear = POS_NOISE * math.sqrt(V.expected_cv_inflation(ev.y.size, 1, 3))
-    assert mean > 1.5 * linear
+    assert dd.mean > 1.5 * linear
     # the same draws for the same seed (reproducible)
-    assert DL.held_out_of_truth(ev, budget, 0, draws=8)[0] == mean
+    assert DL.held_out_of_truth(ev, budget, 0, draws=8, most=8) == dd
 
 
 def _summary(name, n_free, cv_rmse, n=300, expected=None):
@@ -91,35 +91,45 @@ def _summary(name, n_free, cv_rmse, n=300, expected=None):
     return V.FitSummary(name, n_free, float(n * 0.1 ** 2), np.zeros(n), sq, cv_expected=expected)
 
 
-@pytest.mark.parametrize("expected, outcome", [(None, "cannot_tell"), ((0.14, 0.02, 12), "nothing_missing"),
-                                               ((0.11, 0.005, 12), "cannot_tell")])
+_SPREAD12 = V.DesignDraws(tuple(np.linspace(0.10, 0.18, 12)))  # mean 0.14, five of them at least 0.15
+_BELOW43 = V.DesignDraws(tuple(np.linspace(0.10, 0.12, 43)))  # all 43 below 0.15
+_BELOW12 = V.DesignDraws(tuple(np.linspace(0.10, 0.12, 12)))  # all below 0.15, but only 12 of them
+
+
+@pytest.mark.parametrize("expected, outcome", [(None, "cannot_tell"), (_SPREAD12, "nothing_missing"),
+                                               (_BELOW43, "cannot_tell"), (_BELOW12, "nothing_missing")])
 def test_nothing_missing_weighs_the_held_out_error_against_the_designs_own(expected, outcome):
     # the model as is held out at 1.5x the noise: "cannot tell" against the linear model's expectation, "nothing is
-    # missing" when a correct model gives that much on these runs, "cannot tell" again when it gives less
+    # missing" when a correct model is held out as far on these runs, "cannot tell" again when it is held out less
+    # in every one of 43 draws; above 12 draws only, the Monte Carlo test cannot call it an excess (p = 1/13)
     y = np.zeros(300)
     groups = np.repeat([0, 1, 2], 100)
     base = _summary("", 1, 0.15, expected=expected)
     v = V.decide_verdict(y, base, [], V.Noise(0.1, 0.004), {}, [], groups, 3, unit="mm")
-    assert v.outcome == outcome
-    if expected is not None and outcome == "nothing_missing":
-        assert "12 draws" in v.message
+    assert v.outcome == outcome, v.message
+    if expected is not None:
+        k = expected.as_high(0.15)
+        assert f"{expected.draws} draws" in v.message
+        assert (f"{k} of {expected.draws} draws as high" if k else f"above all {expected.draws} draws") in v.message
 
 
-@pytest.mark.parametrize("draws, z", [(12, 2.3469), (4, 3.6971), (1000, 2.0035)])
-def test_the_designs_expectation_bounds_the_held_out_error_as_one_more_draw(draws, z):
-    # the data's held-out RMSE is one more value of what the bootstrap samples, whose mean and SD come from a few
-    # draws: the bound is t(n - 1) sqrt(1 + 1/n) SDs at EXCESS_Z's one-sided level (normal 0.97725; z values from
-    # scipy.stats.t.ppf(0.97725, n - 1) * sqrt(1 + 1 / n)), tending to EXCESS_Z with many draws
-    expect, se, got, words = V.design_excess((0.14, 0.02, draws), 0.1, V.Noise(0.1, 0.0))
-    assert (expect, se) == (0.14, 0.02)
-    assert got == pytest.approx(z, abs=5e-4)
-    assert f"t quantile of {draws - 1} degrees of freedom" in words
-    # held out at 2.2 SDs above the mean of 12 draws: within the bound (EXCESS_Z alone called it an excess)
-    if draws == 12:
-        y, groups = np.zeros(300), np.repeat([0, 1, 2], 100)
-        base = _summary("", 1, 0.14 + 2.2 * 0.02, expected=(0.14, 0.02, 12))
-        v = V.decide_verdict(y, base, [], V.Noise(0.1, 0.0), {}, [], groups, 3, unit="mm")
-        assert v.outcome == "nothing_missing", v.message
+def test_the_designs_draws_bound_the_held_out_error_by_its_rank_among_them():
+    # the data's held-out RMSE is one more draw of what the bootstrap samples: its rank among 43 draws is a Monte
+    # Carlo test at p = 1/44 = 0.0227, EXCESS_Z's one-sided level (0.02275), whatever the draws' distribution
+    assert V.MC_DRAWS == 43 and 1 / 44 <= V.dist.norm_sf(V.EXCESS_Z) < 1 / 43
+    # skewed draws, as the held-out RMSE of a run the others do not pin down is (lognormal, SD of the log 0.8)
+    dd = V.DesignDraws(tuple(np.exp(np.random.default_rng(4).normal(0.0, 0.8, 43))))
+    top = max(dd.values)
+    between = dd.mean + 2.35 * dd.sd  # the bound it replaces: t(0.977, 11) sqrt(1 + 1/12) SDs above the mean
+    assert between < top  # the premise: that normal bound is crossed below the draws' own maximum
+    assert not V.design_excess(dd, between)[0]
+    assert dd.p_value(between) == pytest.approx((1 + dd.as_high(between)) / 44) and dd.as_high(between) >= 1
+    ex, words = V.design_excess(dd, 1.001 * top)
+    assert ex and dd.p_value(1.001 * top) == pytest.approx(1 / 44) and "above all 43 draws" in words
+    # a draw exactly as high counts against the excess (ties go to the null)
+    assert not V.design_excess(dd, top)[0] and dd.as_high(top) == 1
+    # with fewer draws the test can never reach the level: no excess above all 42
+    assert not V.design_excess(V.DesignDraws(dd.values[:42]), 1.001 * top)[0]
 
 
 def test_a_chaotic_runs_drift_spreads_over_starting_states_and_that_enters_its_error(tmp_path):
@@ -162,11 +172,12 @@ def test_diagnose_says_nothing_is_missing_where_a_correct_model_is_held_out_abov
     asis = r["model_as_is"]
     assert asis["cv_rmse"] > 2 * r["noise"]["sd"]
     rec = asis["held_out_if_true"]
-    assert rec["draws"] == DL.HELD_OUT_DRAWS and rec["mean"] > 2 * r["noise"]["sd"]
+    assert DL.HELD_OUT_DRAWS <= rec["draws"] <= V.MC_DRAWS and len(rec["values"]) == rec["draws"]
+    assert rec["mean"] > 2 * r["noise"]["sd"] and rec["as_high"] >= 1 and rec["p_value"] > 1 / 44
     assert r["verdict"]["outcome"] == "nothing_missing", r["verdict"]["message"]
 
 
-@pytest.mark.parametrize("expected", [None, (0.16, 0.03, 12)])
+@pytest.mark.parametrize("expected", [None, V.DesignDraws(tuple(np.linspace(0.11, 0.21, 12)))])
 def test_a_named_effects_excess_is_weighed_against_what_it_gives_as_the_truth_on_the_runs(expected):
     n = 300
     y, groups = np.zeros(n), np.repeat([0, 1, 2], 100)
@@ -199,7 +210,7 @@ class _Ev:  # the fields of DynEvaluation that with_design_expectation reads
     folds: np.ndarray
     k: int
     cv_rmse: float
-    cv_expected: tuple | None = None
+    cv_expected: V.DesignDraws | None = None
 
 
 @pytest.mark.parametrize("ratio, measured", [(1.5, True), (1.1, False)])
@@ -216,9 +227,13 @@ def test_a_named_effect_above_the_noise_over_few_runs_gets_the_design_expectatio
     noise = V.Noise(0.1, 0.004)
     assert ev.cv_rmse == pytest.approx(ratio * 0.1, rel=1e-12)
     assert not DL.above_linear_expectation(ev, noise, named)  # the linear test alone would not measure it
-    monkeypatch.setattr(DL, "held_out_of_truth", lambda ev, budget, seed: (0.16, 0.03, 12))
+    drawn = V.DesignDraws((0.13, 0.16, 0.19))
+    asked = []
+    monkeypatch.setattr(DL, "held_out_of_truth", lambda ev, budget, seed, most: asked.append(most) or drawn)
     out = DL.with_design_expectation(ev, noise, named, DL.EFFORTS["quick"], 0)
-    assert (out.cv_expected == (0.16, 0.03, 12)) if measured else (out is ev)
+    assert (out.cv_expected is drawn) if measured else (out is ev)
+    # within the linear expectation no excess is possible: no draws beyond the first 12 however high it is held out
+    assert asked == ([DL.HELD_OUT_DRAWS] if measured else [])
 
 
 def test_a_run_the_folds_parameters_cannot_run_is_no_knife_edge_and_raises_no_warning():
