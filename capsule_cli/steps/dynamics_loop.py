@@ -1724,9 +1724,9 @@ def held_out_record(ev: DynEvaluation) -> dict | None:
     return {"mean": dd.mean, "sd": dd.sd, "draws": dd.draws, "values": list(dd.values), "as_high": dd.as_high(cv),
             "p_value": dd.p_value(cv),
             "method": "parametric bootstrap: the fitted model plus the noise, refitted and cross-validated as the "
-                      f"data were (trajectories over fewer than 8 runs); {HELD_OUT_DRAWS} draws, up to {MC_DRAWS} "
-                      f"while the data's held-out RMSE is above all of them (Monte Carlo test: an excess above all "
-                      f"{MC_DRAWS})"}
+                      f"data were (trajectories over fewer than 8 runs); {HELD_OUT_DRAWS} draws, and where the data's "
+                      f"held-out RMSE is above the linear expectation up to {MC_DRAWS} while it is above all of them "
+                      f"(Monte Carlo test: an excess above all {MC_DRAWS})"}
 
 
 def simulated_everywhere(evs: Sequence[DynEvaluation]) -> list[DynEvaluation]:
