@@ -72,6 +72,9 @@ ALPHA_SEPARATE = 0.05
 TARGET_POWER = 0.8
 #: held-out error above noise * sqrt(inflation) by more than this many standard errors contradicts "nothing missing"
 EXCESS_Z = 2.0
+#: the draws of a design's Monte Carlo test (:class:`DesignDraws`): a held-out RMSE above every one of them is an
+#: excess at p = 1 / (MC_DRAWS + 1), within EXCESS_Z's one-sided normal level (43 draws: 1/44 = 0.0227 <= 0.02275)
+MC_DRAWS = math.ceil(1.0 / dist.norm_sf(EXCESS_Z)) - 1
 #: a candidate that contains another (Effect.nests) and whose extra parameters do not pass the nested F test is
 #: named over it only if its held-out RMSE is lower by more than this many standard errors of the paired difference
 NESTED_CV_Z = 2.0
@@ -99,9 +102,9 @@ RULE_TEXT = (
     "F test (Bonferroni over candidates and pairs), lower the held-out error and remove at least "
     f"{100 * PARTIAL_SHARE:g} % of it above the noise: then the one with the better own fit is named as a partial step. Covariates collinear in the data (|r| >= "
     f"{COLLINEAR_R:g}) are named together, never one of them alone. \"Nothing is missing\" only when the "
-    f"held-out error is within {EXCESS_Z:g} standard errors of the noise level (trajectories over a few runs: of "
-    "the held-out error the model gives as the truth on those runs, by a parametric bootstrap); otherwise \"the "
-    "data cannot tell\" "
+    f"held-out error is within {EXCESS_Z:g} standard errors of the noise level (trajectories over a few runs: or "
+    f"not above all {MC_DRAWS} draws of the held-out error the model gives as the truth on those runs, a parametric "
+    "bootstrap's Monte Carlo test); otherwise \"the data cannot tell\" "
     "(and a named effect whose held-out error stays above that is said to leave error unexplained). "
     f"At most {100 * (ALPHA_EFFECT + ALPHA_STRUCTURE):g} % of data sets with nothing missing get a finding "
     "(benchmarks/verdict_calibration.py).")
@@ -460,11 +463,6 @@ def winner_excess(sq_err: np.ndarray, groups: np.ndarray, noise: "Noise", n: int
 #: a named effect whose held-out RMSE as the truth on the design (FitSummary.cv_expected) is above this multiple of
 #: the noise SD gets a sentence saying so (the held-out error cannot fall to the noise on those runs)
 DESIGN_NOTE_RATIO = 1.2
-
-
-#: the draws of a design's Monte Carlo test (:class:`DesignDraws`): a held-out RMSE above every one of them is an
-#: excess at p = 1 / (MC_DRAWS + 1), within EXCESS_Z's one-sided normal level (43 draws: 1/44 = 0.0227 <= 0.02275)
-MC_DRAWS = math.ceil(1.0 / dist.norm_sf(EXCESS_Z)) - 1
 
 
 @dataclass(frozen=True)
