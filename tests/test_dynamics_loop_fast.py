@@ -1239,7 +1239,7 @@ def _stub_bootstrap(monkeypatch, n):
     def make_ev(y, cv_sq):
         return SimpleNamespace(bound=bound, y=y, sigma=0.5, theta=np.array([0.5]), fit=SimpleNamespace(weights=None),
                                folds=np.arange(n) % 3, cv_spread=None, sim={"pred": pred, "spread": np.zeros(n)},
-                               cv_sq=cv_sq)
+                               cv_sq=cv_sq, cv_rmse=math.sqrt(float(np.mean(cv_sq))))
     return pred, make_ev, seen
 
 

@@ -1660,7 +1660,7 @@ def held_out_of_truth(ev: DynEvaluation, budget: Budget, seed: int, draws: int =
     spread = np.zeros_like(pred) if ev.cv_spread is None else ev.cv_spread
     var_cv = row_variance(sig, {"spread": spread, "noise_factor": ev.sim.get("noise_factor")}) * np.ones(pred.size)
     w = sig ** 2 / var_cv if sig > 0 else np.ones_like(pred)
-    data_cv = math.sqrt(float(np.mean(ev.cv_sq)))
+    data_cv = ev.cv_rmse
     out: list[float] = []
     while len(out) < int(draws) or (len(out) < int(most) and max(out) < data_cv):
         ys = noise_draw(ev, rng)
@@ -1720,9 +1720,8 @@ def held_out_record(ev: DynEvaluation) -> dict | None:
     dd = ev.cv_expected
     if dd is None:
         return None
-    cv = math.sqrt(float(np.mean(ev.cv_sq)))
-    return {"mean": dd.mean, "sd": dd.sd, "draws": dd.draws, "values": list(dd.values), "as_high": dd.as_high(cv),
-            "p_value": dd.p_value(cv),
+    return {"mean": dd.mean, "sd": dd.sd, "draws": dd.draws, "values": list(dd.values),
+            "as_high": dd.as_high(ev.cv_rmse), "p_value": dd.p_value(ev.cv_rmse),
             "method": "parametric bootstrap: the fitted model plus the noise, refitted and cross-validated as the "
                       f"data were (trajectories over fewer than 8 runs); {HELD_OUT_DRAWS} draws, and where the data's "
                       f"held-out RMSE is above the linear expectation up to {MC_DRAWS} while it is above all of them "
