@@ -1491,7 +1491,8 @@ def test_progression_residual_figure_has_a_panel_per_drive_covariate_and_the_one
     for ax, x in zip(fig.axes, (34.0, 0.2)):
         cross = [ln for ln in ax.get_lines() if ln.get_marker() == "x"]
         assert len(cross) == 1 and list(cross[0].get_xdata()) == [x] and list(cross[0].get_ydata()) == [6.0]
-    assert "left out (outlier)" in [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert "left out (outlier)" in [t.get_text() for t in fig.legends[0].get_texts()]
+    assert all(ax.get_legend() is None for ax in fig.axes)  # below the figure, never on a panel's points
     # readings gathered at one drive (read as an effect there) are diamonds, labelled with the value
     at = {"covariate": "f_Hz", "value": 30.0, "of": 4, "p": 0.008}
     gathered = [{**gross, "row": r, "residual": e, "f_Hz": 30.0, "Pd_N": pd_, "concentrated": at}
@@ -1499,7 +1500,7 @@ def test_progression_residual_figure_has_a_panel_per_drive_covariate_and_the_one
     fig = DL._plot_residuals(res, ev, tmp_path / "r4.png", "test", outliers=[gross] + gathered)
     marks = {ln.get_marker(): list(ln.get_ydata()) for ln in fig.axes[0].get_lines() if ln.get_marker() in "xD"}
     assert marks == {"x": [6.0], "D": [5.0, -4.0]}, marks
-    texts = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    texts = [t.get_text() for t in fig.legends[0].get_texts()]
     assert "left out (outlier)" in texts and "left out (gathered at f = 30 Hz)" in texts, texts
     # the readings at the value where a misfit gathered (scattered_rows): diamonds of their own
     level = [{**gross, "row": r, "residual": e, "f_Hz": f, "Pd_N": 0.3,
@@ -1507,7 +1508,7 @@ def test_progression_residual_figure_has_a_panel_per_drive_covariate_and_the_one
     fig = DL._plot_residuals(res, ev, tmp_path / "r5.png", "test", outliers=[gross] + level)
     marks = {ln.get_marker(): list(ln.get_ydata()) for ln in fig.axes[0].get_lines() if ln.get_marker() in "xD"}
     assert marks == {"x": [6.0], "D": [3.5, -2.5]}, marks
-    assert "left out (misfit gathered at Pd = 0.3 N)" in [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert "left out (misfit gathered at Pd = 0.3 N)" in [t.get_text() for t in fig.legends[0].get_texts()]
     # every reading at 0.3 N left out: the value keeps its tick
     assert [t.get_text() for t in fig.axes[1].get_xticklabels()] == ["0.1", "0.2", "0.3"]
 

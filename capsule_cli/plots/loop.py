@@ -426,7 +426,9 @@ def dynamics_residual_figure(frames: pd.DataFrame, xcols: list[str], rcol: str, 
         if xcol == "time_s" and "run" in frames.columns:
             _label_run_ends(ax, runs, xcol, rcol)
         axes.append(ax)
-    axes[0].legend(loc="best", fontsize=6)
+    # below the figure, not on the axes: on a dense trajectory panel any corner sat on a frame's point
+    handles, names = axes[0].get_legend_handles_labels()
+    fig.legend(handles, names, loc="outside lower center", ncol=min(len(handles), 6), fontsize=6)
     if title:
         axes[0].set_title(title)
     if drift is not None and len(drift):
