@@ -65,6 +65,19 @@ def test_a_strong_candidate_is_named():
     assert v.tests[0].supported and v.tests[0].p_adjusted < 0.01
 
 
+def test_a_p_value_that_underflows_is_said_as_a_bound_not_as_zero():
+    # 400 rows, a candidate that fits to 1e-6 of the model's misfit: the F test's p underflows to 0.0 (a double's
+    # range ends near 1e-308), and the message says "p < 1e-300", never "p = 0" (seen on a trajectory diagnose)
+    n = 400
+    x = np.linspace(0.2, 12, n)
+    y = 8 + 1.5 * np.sqrt(x) + 1e-6 * RNG.standard_normal(n)
+    base = fit("", y, np.full(n, y.mean()), 1, sq_scale=1.1)
+    good = fit("speed_power_law", y, 8 + 1.5 * np.sqrt(x), 3, ("speed_mm_s",), 1.1)
+    v = decide_verdict(y, base, [good], Noise(1e-6, 1e-7, True, "test"), {"speed_mm_s": x}, [], np.arange(n), 5)
+    assert v.missing_effect == "speed_power_law" and v.tests[0].p_value == 0.0
+    assert "F test p < 1e-300" in v.message and "p = 0 " not in v.message and "p = 0," not in v.message, v.message
+
+
 def test_nothing_missing_only_when_the_held_out_error_agrees():
     y = 10 + RNG.standard_normal(N)
     base = fit("", y, np.full(N, y.mean()), 1, sq_scale=1.05)

@@ -79,7 +79,7 @@ from .residual_tests import (OUTLIER_ALPHA, correct_for_correlation, esd_select,
                              serial_correlation, structure_tests)
 from .verdict import (ALPHA_EFFECT, ALPHA_STRUCTURE, COLLINEAR_R, DESIGN_NOTE_RATIO, EXCESS_Z, RULE_TEXT,
                       MC_DRAWS, DesignDraws, FitSummary, Noise, collinear_groups, collinear_with, decide_verdict,
-                      nested_f_test, noise_expectation, rss_pair, winner_excess)
+                      nested_f_test, noise_expectation, p_text, rss_pair, winner_excess)
 
 DYN_KINDS = ("progression", "trajectory")
 #: response classes of dynamics.system.progression (contract section 2, verdict.regime)
@@ -3309,7 +3309,7 @@ def probe_verdict(base: DynEvaluation, cands: Sequence[dict], probes: Sequence[d
     cuts = (f"No built-in effect explains the data" + (f" (the closest, {closest}, held-out RMSE {base.cv_rmse:.3g} "
                                                        f"-> {best_b['ev'].cv_rmse:.3g} {unit})" if best_b else "")
             + f"; {form}, a covariate probe and not a physical model, cuts it to {win['ev'].cv_rmse:.3g} {unit} "
-              f"({shown}, F test p = {win['f_test_p']:.3g} x {m} tried")
+              f"({shown}, F test {p_text(win['f_test_p'])} x {m} tried")
     if len(group) > 1:
         # the probe's covariate moves with another: a function of one is nearly a function of the other
         others = [c for c in group if c != cov]

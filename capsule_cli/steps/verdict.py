@@ -644,6 +644,11 @@ def _g(v: float) -> str:
     return "n/a" if v is None or not np.isfinite(v) else f"{v:.3g}"
 
 
+def p_text(v: float) -> str:
+    """Return 'p = 0.0123', or 'p < 1e-300' where the p-value underflowed to 0 (a double's range ends there)."""
+    return "p < 1e-300" if v is not None and v == 0 else f"p = {_g(v)}"
+
+
 def _pair_verdict(y, base: FitSummary, candidates: Sequence[FitSummary], pairs: Sequence[FitSummary], noise: Noise,
                   cov: str, groups, m: int, alpha: float, unit: str, noise_txt: str, corr_txt: str, sig, tests,
                   expect: float = float("nan")) -> Verdict | None:
@@ -669,7 +674,7 @@ def _pair_verdict(y, base: FitSummary, candidates: Sequence[FitSummary], pairs: 
         good = bool(np.isfinite(pa) and pa < alpha and d > 0 and share >= PARTIAL_SHARE)
         tests.append(CandidateTest(p.name, F, pv, pa, d, se, good,
                                    "passes (two effects at once)" if good else
-                                   f"two effects at once: F test p = {_g(pv)} (x {mm} = {_g(pa)}); "
+                                   f"two effects at once: F test {p_text(pv)} (x {mm} = {_g(pa)}); "
                                    + (f"removes {100 * share:.0f} % of the held-out error above the noise"
                                       if d > 0 else "no lower held-out error")))
         if good:
@@ -682,7 +687,7 @@ def _pair_verdict(y, base: FitSummary, candidates: Sequence[FitSummary], pairs: 
                 if nm in singles else (True, float("inf")))
     second = [nm for nm in best.members if nm != first][0]
     msg = (f"partial step: {first} and {second} together cut held-out RMSE from {_g(base.cv_rmse)} to "
-           f"{_g(best.cv_rmse)} {unit} (F test p = {_g(pv)}, {len(on)} pairs of effects on {cov} tried because "
+           f"{_g(best.cv_rmse)} {unit} (F test {p_text(pv)}, {len(on)} pairs of effects on {cov} tried because "
            f"no single effect explains the dependence on {cov}: {sig[0]['test']} p = "
            f"{_g(sig[0]['p_value'])}); add {first} and run diagnose again, which then tests {second}; "
            f"{noise_txt}{corr_txt}")
@@ -724,7 +729,7 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
         pa = min(1.0, p * m) if np.isfinite(p) else float("nan")
         why = []
         if not (np.isfinite(pa) and pa < alpha_effect):
-            why.append(f"F test p = {_g(p)} (x {m} candidates = {_g(pa)}) not < {alpha_effect:g}")
+            why.append(f"F test {p_text(p)} (x {m} candidates = {_g(pa)}) not < {alpha_effect:g}")
         if not d > 0:
             why.append("no lower held-out error")
         tests.append(CandidateTest(c.name, F, p, pa, d, se, not why, "passes" if not why else "; ".join(why)))
@@ -770,7 +775,7 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
             others = [c.name for tt, c in sup if c is not win and set(c.covariates) & set(conf)]
             msg = (f"{response} depends on {' or '.join(own + conf)}, which move together in these data "
                    f"(collinear, |r| >= {COLLINEAR_R:g}): they cannot be separated. {win.name} fits "
-                   f"(held-out RMSE {_g(cv_base)} -> {_g(win.cv_rmse)} {unit}, F test p = {_g(t.p_value)})"
+                   f"(held-out RMSE {_g(cv_base)} -> {_g(win.cv_rmse)} {unit}, F test {p_text(t.p_value)})"
                    + (f", and so does {', '.join(others)}" if others else "")
                    + f". Measure with {conf[0]} varied at fixed {own[0]} (or the other way round) to tell them "
                    f"apart; {noise_txt}{corr_txt}")
@@ -791,7 +796,7 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
             first = alts[0][0]
             if how["rule"] == "nested" and first.name == how["richer"]:
                 test = (f"{first.name} contains {win.name} ({how['at']}) and neither fits significantly better "
-                        f"(nested F test p = {_g(alts[0][1])} >= {ALPHA_EFFECT:g}) nor lowers the held-out error by "
+                        f"(nested F test {p_text(alts[0][1])} >= {ALPHA_EFFECT:g}) nor lowers the held-out error by "
                         f"more than {NESTED_CV_Z:g} standard errors")
                 why = f"{win.name}, the simpler, is named"
             elif first.name in how["nested"] and how["nested"][first.name]["named_is_richer"]:
@@ -802,7 +807,7 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
                 why = f"{win.name} is named first by penalised fit (AICc)"
             elif first.name in how["nested"]:
                 test = (f"{first.name} contains {win.name} ({how['nested'][first.name]['at']}) and does not fit "
-                        f"significantly better (nested F test p = {_g(alts[0][1])} >= {ALPHA_EFFECT:g})")
+                        f"significantly better (nested F test {p_text(alts[0][1])} >= {ALPHA_EFFECT:g})")
                 why = f"{win.name}, the simpler, is named first"
             else:
                 test = f"Vuong test of the two fits p = {_g(alts[0][1])}"
@@ -812,7 +817,7 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
                    + (f"; more measurements {where}, where the two fits differ most, would separate them"
                       if where else ""))
         msg = (f"adding {win.name} cuts held-out RMSE from {_g(cv_base)} to {_g(win.cv_rmse)} {unit} "
-               f"(F test p = {_g(t.p_value)}, {m} candidates tried{alt}); {noise_txt}{corr_txt}")
+               f"(F test {p_text(t.p_value)}, {m} candidates tried{alt}); {noise_txt}{corr_txt}")
         if own_left:
             s = own_left[0]
             per = _period(win.structure, s["covariate"], alpha_structure) if s["covariate"] in ordered else None
@@ -919,7 +924,7 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
            if noise.reliable else f"with {n} points and no replicates {noise_txt}")
     msg = f"the data cannot tell: {why}, but no candidate passes the rule"
     if closest:
-        msg += f"; closest: {closest} (F test p = {_g(tests[i].p_value)})"
+        msg += f"; closest: {closest} (F test {p_text(tests[i].p_value)})"
         if more:
             msg += f"; roughly {more} measurements in all (now {n}) would settle it"
             if where:
