@@ -607,6 +607,8 @@ def test_trajectory_frames_a_tracker_got_wrong_are_left_out_not_read_as_an_effec
     # diagnosis.md says where to look in the video
     md = (tmp_path / "gdiag" / "diagnosis.md").read_text()
     assert f"row {bad[0]} (run b, t = {df['time_s'][bad[0]]:g} s; " in md
+    # runs from rest at phase 0: no progression protocol (transient and recorded periods) is said to apply
+    assert "- Runs: each from rest at drive phase 0" in md and "- Protocol:" not in md
 
 
 # the benchmark's runs3 design (benchmarks/dynamics_loop_calibration.py): its 24 Hz run's steady response is

@@ -3706,7 +3706,9 @@ def diagnosis_markdown(r: dict) -> str:
              + (f" (collinear, not separable by these data: {', '.join(v['confounded'])})" if v.get("confounded")
                 else "") + ".",
              f"- Candidates tried: {', '.join(r['candidates_tried']) or 'none'}.",
-             f"- Protocol: {r['protocol']}.",
+             (f"- Protocol: {r['protocol']}." if r.get("kind") != "trajectory" else
+              "- Runs: each from rest at drive phase 0 (F = P_d cos 2 pi f t), the trajectory kind's time axis; the "
+              "model file's protocol does not apply."),
              f"- Noise: {r['noise']['sd']:.3g} {u} ({r['noise']['method']}).",
              *(["- Outliers, left out of every fit (0-based data rows; how far from the best-fitting model tried, "
                 "in noise SDs of the other rows): " + ", ".join(f"row {o['row']} ({_frame_words(o, '; ')}{o['z']:.3g}, "

@@ -147,33 +147,43 @@ if LOOP.enabled:
 LOOP_DYN_PKG = LOOP_PKG + pkg("effects/dynamics.py", "steps/dynamics_loop.py", "dynamics/system.py",
                               "dynamics/engine.py", "dynamics/model.py")
 LOOP_DYN_DEMOS = {
-    # (kind, loop.dynamics_demo): (true model with the hidden effect, base model)
+    # (kind, the kind's demo in loop:): (true model with the hidden effect, base model)
     ("progression", "sdf"): ("progression_sdf_truth.yaml", "progression_base.yaml"),
     ("progression", "secondary"): ("progression_secondary_truth.yaml", "progression_base_short.yaml"),
+    ("trajectory", "tilt"): ("trajectory_tilt_truth.yaml", "trajectory_base.yaml"),
 }
+LOOP_DYN_DEMO_OF = {"progression": LOOP.dynamics_demo, "trajectory": LOOP.trajectory_demo}
 LOOP_DYN_CANDIDATES = "".join(f" --candidate {c}" for c in LOOP.dynamics_candidates)
+# synth per kind: design, noise SD (mm/s; mm), replicates, the camera's frame rate for trajectories
+LOOP_DYN_SYNTH = {
+    "progression": dict(design=LOOP.dynamics_design, noise=LOOP.noise_sd_progression_mm_s,
+                        reps=LOOP.dynamics_replicates, extra=""),
+    "trajectory": dict(design=LOOP.trajectory_design, noise=LOOP.noise_sd_trajectory_mm, reps=1,
+                       extra=f" --frame-rate-Hz {LOOP.frame_rate_Hz:g}"),
+}
 
 
 def _dyn_model(w, i):
-    return str(CONFIGS / "models" / LOOP_DYN_DEMOS[(w.dkind, LOOP.dynamics_demo)][i])
+    return str(CONFIGS / "models" / LOOP_DYN_DEMOS[(w.dkind, LOOP_DYN_DEMO_OF[w.dkind])][i])
 
 
 rule loop_dynamics_synth:
     input:
         truth=lambda w: _dyn_model(w, 0),
-        design=str(CONFIGS / "designs" / LOOP.dynamics_design),
+        design=lambda w: str(CONFIGS / "designs" / LOOP_DYN_SYNTH[w.dkind]["design"]),
         code=LOOP_DYN_PKG,
     output:
         data=f"{LOOP_DIR}/dyn_{{dkind}}/{{dkind}}_synthetic.csv",
     params:
-        noise=LOOP.noise_sd_progression_mm_s,
-        reps=LOOP.dynamics_replicates,
+        noise=lambda w: LOOP_DYN_SYNTH[w.dkind]["noise"],
+        reps=lambda w: LOOP_DYN_SYNTH[w.dkind]["reps"],
+        extra=lambda w: LOOP_DYN_SYNTH[w.dkind]["extra"],
         seed=STUDY.seed,
     log:
         f"{LOOP_DIR}/dyn_{{dkind}}/logs/synth.log",
     shell:
         "capsule-cli synth --model {input.truth} --design {input.design} --noise-sd {params.noise} "
-        "--replicates {params.reps} --seed {params.seed} --out {output.data} --quiet 2> {log}"
+        "--replicates {params.reps}{params.extra} --seed {params.seed} --out {output.data} --quiet 2> {log}"
 
 
 rule loop_dynamics_compare_base:
@@ -183,6 +193,8 @@ rule loop_dynamics_compare_base:
         code=LOOP_DYN_PKG,
     output:
         metrics=f"{LOOP_DIR}/dyn_{{dkind}}/compare_as_is/metrics.json",
+        fig=captioned(f"{LOOP_DIR}/dyn_{{dkind}}/compare_as_is/residuals.png", "loop_dyn_residuals", CAT_LOOP,
+                      "Dynamics: residuals"),
         ledger=f"{LOOP_DIR}/dyn_{{dkind}}/ledger_as_is.parquet",
     params:
         out=f"{LOOP_DIR}/dyn_{{dkind}}/compare_as_is",
@@ -223,6 +235,8 @@ rule loop_dynamics_compare_improved:
         code=LOOP_DYN_PKG,
     output:
         metrics=f"{LOOP_DIR}/dyn_{{dkind}}/compare_with_effect/metrics.json",
+        fig=captioned(f"{LOOP_DIR}/dyn_{{dkind}}/compare_with_effect/residuals.png", "loop_dyn_residuals", CAT_LOOP,
+                      "Dynamics: residuals"),
         ledger=f"{LOOP_DIR}/dyn_{{dkind}}/ledger_with_effect.parquet",
     params:
         out=f"{LOOP_DIR}/dyn_{{dkind}}/compare_with_effect",
@@ -240,7 +254,8 @@ rule loop_dynamics_ledger_plot:
         base=f"{LOOP_DIR}/dyn_{{dkind}}/ledger_as_is.parquet",
         improved=f"{LOOP_DIR}/dyn_{{dkind}}/ledger_with_effect.parquet",
     output:
-        fig=captioned(f"{LOOP_DIR}/dyn_{{dkind}}/error_ledger.png", "loop_ledger", CAT_LOOP, "Error falling (ledgers)"),
+        fig=captioned(f"{LOOP_DIR}/dyn_{{dkind}}/error_ledger.png", "loop_dyn_ledger", CAT_LOOP,
+                      "Error falling (ledgers)"),
     log:
         f"{LOOP_DIR}/dyn_{{dkind}}/logs/ledger_plot.log",
     shell:
