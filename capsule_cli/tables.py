@@ -366,6 +366,12 @@ def infer_kind(columns: Iterable[str]) -> str | None:
 
 #: covariates for which +inf is a value (a flat, cut-open intestine; a straight tube)
 INFINITE_OK = {"Ri", "bend_radius"}
+#: what to do about a missing value in a measured column whose rows may simply be left out
+MISSING_HINT = {"capsule": "a frame the tracker lost? leave its row out, or pass --drop-incomplete (frames need not "
+                           "be evenly spaced)",
+                "magnet": "a frame the tracker lost? leave its row out, or pass --drop-incomplete (frames need not "
+                          "be evenly spaced)",
+                "velocity": "a condition not measured? leave its row out, or pass --drop-incomplete"}
 #: the ``statistic`` values the built-in models of a kind predict (friction: trial averages only)
 SUPPORTED_STATISTICS = {"friction": ("avg",), "pressure": ("avg", "max")}
 
@@ -525,12 +531,32 @@ def read_measurements(path: str | os.PathLike, kind: str | None = None,
         if col in LABEL_COLUMNS and df[col].isna().any():
             i = int(np.argmax(df[col].isna().to_numpy()))
             _fail(p, f"column '{col}' row {i + 1}: missing label")
+    if kind == "trajectory":
+        check_frame_order(p, df)
     df.attrs["source_path"] = str(p)
     df.attrs["kind"] = kind
     df.attrs["dropped_rows"] = dropped
     df.attrs["text_labels"] = texts
     df.attrs["provenance"] = _measurement_provenance(p)
     return df, kind
+
+
+def check_frame_order(path, df: pd.DataFrame) -> None:
+    """InputError unless each run's frames come in increasing ``time_s`` (runs may interleave).
+
+    A trajectory run is compared frame after frame from rest (its drift, its successive differences, its
+    residuals' correlation along time), so a frame out of order or two frames at one time are a table error,
+    named at the first such row (1-based data row), not something to guess around."""
+    import pandas as pd
+    t = df["time_s"].to_numpy(float)
+    rows = pd.Series(np.arange(len(df)))
+    prev = rows.groupby(df["run"].to_numpy(), sort=False).shift().to_numpy()  # the run's frame before, NaN first
+    has = ~np.isnan(prev)
+    j = np.flatnonzero(has)[t[has] <= t[prev[has].astype(int)]]
+    if j.size:
+        i, k = int(j[0]), int(prev[j[0]])
+        _fail(path, f"column 'time_s' row {i + 1}: run '{df['run'].iloc[i]}' has t = {t[i]:g} s after {t[k]:g} s "
+                    f"(row {k + 1}); each run's frames must come in increasing time (sort by run, time_s)")
 
 
 def check_column_names(path, columns: Iterable) -> list[str]:
@@ -580,7 +606,8 @@ def numeric_column(path, col: str, raw: pd.Series) -> np.ndarray:
         _fail(path, f"column '{col}' row {i + 1}: non-numeric value {_short(raw.iloc[i])}")
     if np.isnan(vals).any():
         i = int(np.argmax(np.isnan(vals)))
-        _fail(path, f"column '{col}' row {i + 1}: missing value (NaN)")
+        hint = MISSING_HINT.get(split_unit(col)[0])
+        _fail(path, f"column '{col}' row {i + 1}: missing value (NaN)" + (f"; {hint}" if hint else ""))
     # +inf is a physical value for some columns (a flat intestine: R_i = inf, seed 003 Case 1)
     ok = np.isfinite(vals) | ((vals == np.inf) & (split_unit(col)[0] in INFINITE_OK))
     if not ok.all():

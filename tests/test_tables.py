@@ -58,6 +58,14 @@ def test_measurements_kind_inferred_and_units_converted(tmp_path):
     ("speed_mm_s,friction_lbf\n1,2\n", "unknown unit suffix 'lbf'"),
     ("time_s,pressure_kPa,temp_F\n1,2,3\n", "unknown unit suffix 'F'"),
     ("speed_mm_s,friction_mN,position_s\n1,2,3\n", "does not fit"),
+    # a camera track: a lost frame says how to go on; a run's frames out of time order are named
+    ("run,f_Hz,Pd_N,time_s,capsule_mm\na,30,0.2,0,0\na,30,0.2,0.01,\n",
+     "column 'capsule_mm' row 2: missing value (NaN); a frame the tracker lost? leave its row out, or pass "
+     "--drop-incomplete"),
+    ("run,f_Hz,Pd_N,time_s,capsule_mm\na,30,0.2,0,0\nb,30,0.2,0,0\na,30,0.2,0.02,1\na,30,0.2,0.01,2\n",
+     "column 'time_s' row 4: run 'a' has t = 0.01 s after 0.02 s (row 3); each run's frames must come in "
+     "increasing time"),
+    ("run,f_Hz,Pd_N,time_s,capsule_mm\na,30,0.2,0,0\na,30,0.2,0,1\n", "row 2: run 'a' has t = 0 s after 0 s"),
 ])
 def test_bad_measurements_fail_with_one_line(tmp_path, text, fragment):
     p = _write(tmp_path, text)
@@ -65,6 +73,14 @@ def test_bad_measurements_fail_with_one_line(tmp_path, text, fragment):
         tables.read_measurements(p)
     msg = str(exc.value)
     assert fragment in msg and "m.csv" in msg and "\n" not in msg
+
+
+def test_trajectory_runs_may_interleave_and_skip_frames(tmp_path):
+    # runs interleaved (a table sorted by time) and a frame missing (t = 0.01 s of run a): each run in time order
+    p = _write(tmp_path, "run,f_Hz,Pd_N,time_s,capsule_mm\na,30,0.2,0,0\nb,30,0.2,0,0\nb,30,0.2,0.01,1\n"
+                         "a,30,0.2,0.02,1\nb,30,0.2,0.02,2\n")
+    df, kind = tables.read_measurements(p)
+    assert kind == "trajectory" and df["time_s"].tolist() == [0, 0, 0.01, 0.02, 0.02]
 
 
 def test_missing_required_column_named(tmp_path):
