@@ -367,10 +367,9 @@ def infer_kind(columns: Iterable[str]) -> str | None:
 #: covariates for which +inf is a value (a flat, cut-open intestine; a straight tube)
 INFINITE_OK = {"Ri", "bend_radius"}
 #: what to do about a missing value in a measured column whose rows may simply be left out
-MISSING_HINT = {"capsule": "a frame the tracker lost? leave its row out, or pass --drop-incomplete (frames need not "
-                           "be evenly spaced)",
-                "magnet": "a frame the tracker lost? leave its row out, or pass --drop-incomplete (frames need not "
-                          "be evenly spaced)",
+_LOST_FRAME = ("a frame the tracker lost? leave its row out, or pass --drop-incomplete (frames need not be evenly "
+               "spaced)")
+MISSING_HINT = {"capsule": _LOST_FRAME, "magnet": _LOST_FRAME,
                 "velocity": "a condition not measured? leave its row out, or pass --drop-incomplete"}
 #: the ``statistic`` values the built-in models of a kind predict (friction: trial averages only)
 SUPPORTED_STATISTICS = {"friction": ("avg",), "pressure": ("avg", "max")}

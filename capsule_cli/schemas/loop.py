@@ -24,7 +24,7 @@ class LoopStudy(Strict):
         description="dynamics kinds with a hidden-effect demo (progression: the hidden effect is dynamics_demo; "
                     "trajectory: trajectory_demo); none when the list is empty (configs/study.yaml turns them on)")
     dynamics_design: str = Field(default="progression_grid.csv",
-                                 description="design of the dynamics demo (configs/designs/)")
+                                 description="design of the progression demo (configs/designs/)")
     dynamics_replicates: int = Field(default=2, ge=1, description="replicates per condition of the dynamics demo [-]")
     dynamics_effort: Literal["full", "quick"] = Field(default="full", description="calibration budget of the "
                                                       "dynamics demo (capsule-cli --effort)")
