@@ -2658,7 +2658,7 @@ def regime_of(ev: DynEvaluation, sigma: float) -> str | None:
 
 _CLASS_WORDS = {"no_impact": "the shell is not hit", "one_impact": "the magnet hits the constraint at most once "
                 "per period", "multi_impact": "it hits more than once per period", "irregular": "the response is "
-                "irregular (no period up to 8)"}
+                "irregular, with no period of up to 8 drive periods"}
 
 
 def _span(x: pd.Series) -> str:
