@@ -152,19 +152,18 @@ LOOP_DYN_DEMOS = {
     ("progression", "secondary"): ("progression_secondary_truth.yaml", "progression_base_short.yaml"),
     ("trajectory", "tilt"): ("trajectory_tilt_truth.yaml", "trajectory_base.yaml"),
 }
-LOOP_DYN_DEMO_OF = {"progression": LOOP.dynamics_demo, "trajectory": LOOP.trajectory_demo}
 LOOP_DYN_CANDIDATES = "".join(f" --candidate {c}" for c in LOOP.dynamics_candidates)
-# synth per kind: design, noise SD (mm/s; mm), replicates, the camera's frame rate for trajectories
+# per kind: its demo (a key of LOOP_DYN_DEMOS) and synth's design, noise SD (mm/s; mm), replicates and extra flags
 LOOP_DYN_SYNTH = {
-    "progression": dict(design=LOOP.dynamics_design, noise=LOOP.noise_sd_progression_mm_s,
+    "progression": dict(demo=LOOP.dynamics_demo, design=LOOP.dynamics_design, noise=LOOP.noise_sd_progression_mm_s,
                         reps=LOOP.dynamics_replicates, extra=""),
-    "trajectory": dict(design=LOOP.trajectory_design, noise=LOOP.noise_sd_trajectory_mm, reps=1,
-                       extra=f" --frame-rate-Hz {LOOP.frame_rate_Hz:g}"),
+    "trajectory": dict(demo=LOOP.trajectory_demo, design=LOOP.trajectory_design, noise=LOOP.noise_sd_trajectory_mm,
+                       reps=1, extra=f" --frame-rate-Hz {LOOP.frame_rate_Hz:g}"),
 }
 
 
 def _dyn_model(w, i):
-    return str(CONFIGS / "models" / LOOP_DYN_DEMOS[(w.dkind, LOOP_DYN_DEMO_OF[w.dkind])][i])
+    return str(CONFIGS / "models" / LOOP_DYN_DEMOS[(w.dkind, LOOP_DYN_SYNTH[w.dkind]["demo"])][i])
 
 
 rule loop_dynamics_synth:
