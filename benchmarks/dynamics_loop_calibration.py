@@ -15,7 +15,7 @@ The result JSON is rewritten after every seed, so an interrupted run still repor
 Designs (alternating over seeds), responses periodic for the base model at P_f = 0.02 N (but one):
     six: f 30, 34, 38 Hz x P_d 0.08, 0.10 N (the CI tests' design)
     ten: f 30, 32, 34, 36, 38 Hz x P_d 0.08, 0.12 N (36 Hz / 0.12 N is irregular, its windows 0.1-0.5 mm/s apart:
-         diagnose leaves its replicates out of the noise estimate, steps/dynamics_loop.py:
+         diagnose leaves its replicates out of the noise estimate, steps/dynamics_loop/noise.py:
          replicate_noise_without_chaos)
 and, for a continuation protocol, where the sweep's history matters (the end state handed from one frequency to
 the next decides the branch: one, several and irregular responses):

@@ -17,7 +17,7 @@ parameter the same seeds named 10 of 10, but a six-run trajectory fit (test_dyna
 stopped in a worse minimum: the multi-start strategy is the weak point, left for the next round. Here: tilt at
 kappa = 0.15 (13 mm/s off), seed 1, five folds: every effect is named; held-out within 1.2 x the noise SD for
 every one (the secondary constraint's was 0.72-0.75 mm/s until the calibration's robust first stage and
-starting-state weights, steps/dynamics_loop.py: calibrate). On 14 rows a perfect
+starting-state weights, steps/dynamics_loop/calibration.py: calibrate). On 14 rows a perfect
 model alone exceeds 1.2 x SD with probability ~0.12 (chi-square), so the criterion is noisy on designs this
 small; the 40-condition design is the benchmark's (benchmarks/bench_dynamics_loop.py). CPU: 16-30 s per
 effect on a loaded 2-core machine in session 25, 41-70 s on a slower day (2026-12-02).

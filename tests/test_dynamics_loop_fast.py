@@ -105,7 +105,7 @@ def test_nothing_missing_gives_a_null_verdict(tmp_path):
 # --------------------------------------------------------------------------- one speed per condition (no replicates)
 # Differences between neighbouring conditions are not noise (the speed jumps as impacts appear and vanish: on
 # TEN_DESIGN 5-25x the generating SD), so without replicates diagnose takes the noise from the best fit's
-# standardised residuals (steps/dynamics_loop.py: progression_noise) and says so.
+# standardised residuals (steps/dynamics_loop/noise.py: progression_noise) and says so.
 
 
 def test_no_replicates_nothing_missing_noise_from_the_residuals(tmp_path):
@@ -1090,7 +1090,7 @@ def test_bootstrap_interval_is_the_fit_plus_t_standard_errors_in_box_coordinates
     g = np.array([0.98, 0.99, 1.0, 0.97, 0.99])
     a = 100.0 * np.exp(np.array([-0.2, 0.1, 0.0, 0.2, -0.1]))  # spread by +-20 %
     draws = iter(np.column_stack([rolloff, g, a]))
-    monkeypatch.setattr(DL, "calibrate", lambda *args, **kw: SimpleNamespace(theta=next(draws)))
+    monkeypatch.setattr(DL.evaluation, "calibrate", lambda *args, **kw: SimpleNamespace(theta=next(draws)))
     groups = np.repeat(np.arange(6), 3)
     ev = SimpleNamespace(groups=groups, bound=bound, y=np.zeros(groups.size), sigma=1.0, theta=theta, k=3,
                          resid=np.zeros(groups.size),
@@ -1145,7 +1145,7 @@ def test_intervals_come_from_the_fit_plus_the_noise(monkeypatch):
         seen.append((np.asarray(y) - pred, rows))
         return SimpleNamespace(theta=np.array([0.5 + 0.01 * len(seen)]))
 
-    monkeypatch.setattr(DL, "calibrate", refit)
+    monkeypatch.setattr(DL.evaluation, "calibrate", refit)
     ci, se, how = DL.bootstrap_intervals(ev, 5, QUICK, 0)
     assert "parametric" in how and "AR(1)" not in how and "SD 0.3 mm" in how
     assert "without the 1 row whose response is irregular or multistable at the fit" in how
@@ -1194,7 +1194,7 @@ def test_bootstrap_draws_are_the_same_for_the_same_data_and_independent_between_
         seen.append(np.asarray(y) - pred)
         return SimpleNamespace(theta=np.array([0.5 + 0.01 * len(seen)]))
 
-    monkeypatch.setattr(DL, "calibrate", refit)
+    monkeypatch.setattr(DL.evaluation, "calibrate", refit)
 
     def draws(y, seed=0):
         ev = SimpleNamespace(groups=np.arange(n), bound=bound, y=y, sigma=0.5, k=1, resid=np.zeros(n),
@@ -1235,7 +1235,7 @@ def _stub_bootstrap(monkeypatch, n):
             seen.append(np.asarray(y) - pred)
         return SimpleNamespace(theta=np.array([0.5]))
 
-    monkeypatch.setattr(DL, "calibrate", refit)
+    monkeypatch.setattr(DL.evaluation, "calibrate", refit)
     bound = SimpleNamespace(free=[lin], kind="trajectory", simulate=lambda th, rows, classify=False: {"pred": pred})
 
     def make_ev(y, cv_sq):
@@ -1884,7 +1884,7 @@ def test_a_start_two_orders_of_magnitude_behind_stops_and_the_others_end_as_unin
     most = a.size + 2  # one Nelder-Mead iteration: a reflection, a contraction and a shrink of k vertices
     assert alone > pause + most and pause <= n_race - (n_plain - alone) <= pause + most  # to the pause's iteration
     # no start dropped: every run as without the race, evaluation for evaluation
-    monkeypatch.setattr(DL, "RACE_DROP", np.inf)
+    monkeypatch.setattr(DL.calibration, "RACE_DROP", np.inf)
     calls.clear()
     all_runs: list = []
     same = DL._nelder_mead(cost, starts, M, 0.15, 1e-3, all_runs, race=True)
@@ -1909,7 +1909,7 @@ def test_a_response_multistable_at_the_fit_keeps_its_spread_held_out(monkeypatch
 
     bound = SimpleNamespace(kind="progression", free=[SimpleNamespace(key="p")], bounds=([0.0], [2.0]),
                             observed=lambda: y, simulate=simulate)
-    monkeypatch.setattr(DL, "calibrate", lambda *a, **k: DL.Fit(np.array([1.0 + 1e-3]), 0.0, 1, 1))
+    monkeypatch.setattr(DL.evaluation, "calibrate", lambda *a, **k: DL.Fit(np.array([1.0 + 1e-3]), 0.0, 1, 1))
     fit = DL.Fit(np.array([1.0]), 0.0, 1, 1)
     groups = np.arange(n)
     folds = groups % 5

@@ -229,7 +229,7 @@ def test_a_named_effect_above_the_noise_over_few_runs_gets_the_design_expectatio
     assert not DL.above_linear_expectation(ev, noise, named)  # the linear test alone would not measure it
     drawn = V.DesignDraws((0.13, 0.16, 0.19))
     asked = []
-    monkeypatch.setattr(DL, "held_out_of_truth", lambda ev, budget, seed, most: asked.append(most) or drawn)
+    monkeypatch.setattr(DL.evaluation, "held_out_of_truth", lambda ev, budget, seed, most: asked.append(most) or drawn)
     out = DL.with_design_expectation(ev, noise, named, DL.EFFORTS["quick"], 0)
     assert (out.cv_expected is drawn) if measured else (out is ev)
     # within the linear expectation no excess is possible: no draws beyond the first 12 however high it is held out

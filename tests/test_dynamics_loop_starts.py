@@ -109,7 +109,7 @@ def test_box_edges_count_a_zero_floor_within_rounding_as_zero(monkeypatch):
         "drag_Ns_m": {"owner": "viscous_drag", "at_bound": True, "bounds": [0.0, 1.0], "value": 1.0},
         "kappa": {"owner": "tilt_friction", "at_bound": False, "bounds": [-2.0, 2.0], "value": 0.1},
     }
-    monkeypatch.setattr(DL, "param_table", lambda ev: table)
+    monkeypatch.setattr(DL.report, "param_table", lambda ev: table)
     assert DL.box_edges(None, "substrate_compliance") == ["compliance_mm_N"]
     table["compliance_mm_N"]["at_bound"] = False
     assert DL.box_edges(None, "substrate_compliance") == []

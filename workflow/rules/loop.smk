@@ -144,8 +144,8 @@ if LOOP.enabled:
 # compare the improved model -> ledger plot. The protocol is in the model files. File names differ from the
 # quasi-static demos' so that no output pattern of theirs matches (their {demo} wildcard spans folders).
 
-LOOP_DYN_PKG = LOOP_PKG + pkg("effects/dynamics.py", "steps/dynamics_loop.py", "dynamics/system.py",
-                              "dynamics/engine.py", "dynamics/model.py")
+LOOP_DYN_PKG = LOOP_PKG + pkg("effects/dynamics.py", "dynamics/system.py", "dynamics/engine.py",
+                              "dynamics/model.py") + pkg_dir("steps/dynamics_loop")
 LOOP_DYN_DEMOS = {
     # (kind, the kind's demo in loop:): (true model with the hidden effect, base model)
     ("progression", "sdf"): ("progression_sdf_truth.yaml", "progression_base.yaml"),
