@@ -12,6 +12,9 @@ of freedom).
         100 frames per second, position noise 0.3 mm
     speed_progression: a speed law (a 3 mN, n 0.6), configs/designs/progression_grid.csv (10 frequencies x 4
         amplitudes), one value per condition, protocol rest 120/60 periods, noise 0.5 mm/s
+    base_small: the base alone (P_f the one free parameter), configs/designs/progression_periodic_small.csv (six
+        conditions), one value per condition, rest 120/60, noise 0.5 mm/s: a small design, whose noise estimate
+        has 5 degrees of freedom (dynamics_loop.interval_dof)
 
 Usage:
     python benchmarks/dynamics_interval_coverage.py --case drag_traj [--seeds 40] [--first-seed 0]
@@ -47,6 +50,7 @@ CASES = {  # kind, effects, effect values, noise (mm or mm/s), design
     "drag_traj": ("trajectory", ["viscous_drag"], {"drag_Ns_m": 0.03}, 0.3, "trajectory_runs.csv"),
     "speed_progression": ("progression", ["speed_dependent_friction"], {"a_mN": 3.0, "n": 0.6}, 0.5,
                           "progression_grid.csv"),
+    "base_small": ("progression", [], {}, 0.5, "progression_periodic_small.csv"),
 }
 
 

@@ -1115,6 +1115,46 @@ def test_bootstrap_interval_is_the_fit_plus_t_standard_errors_in_box_coordinates
     assert DL.bootstrap_intervals(ev, 1, QUICK, 0) == ({}, {}, "")
 
 
+def test_an_interval_drawn_at_an_estimated_noise_allows_for_the_estimates_degrees_of_freedom(monkeypatch):
+    """The bootstrap's draws are made at a noise SD that is itself estimated, and the SE scales with it: the t
+    quantile takes nu from both (1 / nu = 1 / (n - 1) + 1 / noise_dof, Satterthwaite; interval_dof). Six
+    conditions without replicates and one free parameter leave the noise 5 degrees of freedom: with 20 refits nu
+    is 4.0 and t 2.78, not the refits' 2.09. Known noise (inf): the refits' n - 1 alone, as before. The fit's own
+    residual SD, when it is above the noise estimate, has the rows less the parameters."""
+    from scipy.stats import t as student_t
+
+    assert DL.interval_dof(20, np.inf) == 19.0
+    assert DL.interval_dof(20, 5.0) == pytest.approx(1.0 / (1.0 / 19.0 + 1.0 / 5.0), rel=1e-12)  # 3.96
+    assert DL.interval_dof(20, 37.0) == pytest.approx(12.55, abs=0.01)  # the 40-condition grid, 3 parameters
+    assert float(student_t.ppf(0.975, DL.interval_dof(20, 5.0))) == pytest.approx(2.78, abs=0.01)
+    spec = SimpleNamespace(key="rolloff", bounds=(-1.0, 1.0), param=SimpleNamespace(log_from=None))
+    bound = SimpleNamespace(free=[spec], bounds=(np.array([-1.0]), np.array([1.0])), kind="progression")
+    rolloff = np.array([0.29, 0.30, 0.31, 0.30, 0.305])
+    n_rows = 12
+
+    def stub(resid):
+        draws = iter(rolloff[:, None])
+        monkeypatch.setattr(DL.evaluation, "calibrate", lambda *args, **kw: SimpleNamespace(theta=next(draws)))
+        return SimpleNamespace(groups=np.arange(n_rows), bound=bound, y=np.zeros(n_rows), sigma=1.0,
+                               theta=np.array([0.3]), k=1, resid=resid, fit=SimpleNamespace(weights=None),
+                               sim={"pred": np.zeros(n_rows), "spread": np.zeros(n_rows),
+                                    "cls": np.array(["period_1"] * n_rows)})
+
+    sd = np.std(rolloff, ddof=1)
+    for noise_dof, nu in ((np.inf, 4.0), (5.0, 1.0 / (1.0 / 4.0 + 1.0 / 5.0))):
+        ci, _, how = DL.bootstrap_intervals(stub(np.zeros(n_rows)), 5, QUICK, 0, noise_dof=noise_dof)
+        q = float(student_t.ppf(0.975, nu))
+        assert ci["rolloff"] == pytest.approx([0.3 - q * sd, 0.3 + q * sd], rel=1e-9)
+        assert ("t(0.975, n - 1) SDs" in how) == (noise_dof == np.inf)
+    assert "t(0.975, 2.22) (the refits' n - 1 = 4 and the noise SD's 5 degrees of freedom combined)" in how
+    # the fit misses the data (residual SD 2 against the noise estimate's 1): drawn at its own residual SD, whose
+    # degrees of freedom are the 12 rows less 1 parameter, whatever the noise estimate's
+    ci, _, how = DL.bootstrap_intervals(stub(np.full(n_rows, 2.0)), 5, QUICK, 0, noise_dof=np.inf)
+    q = float(student_t.ppf(0.975, 1.0 / (1.0 / 4.0 + 1.0 / 11.0)))
+    assert ci["rolloff"] == pytest.approx([0.3 - q * sd, 0.3 + q * sd], rel=1e-9)
+    assert "the noise SD's 11 degrees of freedom" in how and "the fit's residual SD, above the noise estimate" in how
+
+
 def test_intervals_come_from_the_fit_plus_the_noise(monkeypatch):
     """The refits (four runs here) are to the fit's predictions plus noise of each row's SD (a frame's noise; a
     drift's, its noise factor and the model's spread), not to resampled runs (whose SEs varied 200-fold over noise

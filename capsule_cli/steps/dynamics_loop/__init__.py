@@ -42,8 +42,8 @@ Bounded, multi-start, derivative-free (the objective is piecewise and non-smooth
 parameters: impacts appear and vanish): a scrambled Sobol scan of the box, then bounded
 Nelder-Mead (scipy) from the best scan points and the start values, in coordinates scaled to
 [0, 1]. Each evaluation runs all conditions in parallel (numba ``prange`` in ``run_many``).
-Cross-validation: grouped K-fold (:mod:`.crossval`; never splitting a run or replicates),
-each fold warm-started from the full fit. 95 % intervals: the fit +- t(0.975, n - 1) bootstrap
+Cross-validation: grouped K-fold (:mod:`..crossval`; never splitting a run or replicates),
+each fold warm-started from the full fit. 95 % intervals: the fit +- t(0.975, nu) bootstrap
 standard errors, a parametric bootstrap (the fit plus the noise, each draw refitted warm-started),
 stated in the metrics (:func:`bootstrap_intervals`).
 
@@ -66,8 +66,8 @@ from .calibration import Fit, RACE_DROP, RACE_FIRST, _nelder_mead, _std_sq, axis
 from .noise import (blocked_caveat, blocked_in_row_order, detrended_by_run, noise_of, progression_noise, record_serial,
                     simulated_everywhere, standardised_residual_sd, trajectory_noise)
 from .evaluation import (HELD_OUT_DRAWS, REFIT_NOISE_RATIO, above_linear_expectation, bootstrap_intervals, data_stream,
-                         dominant_group, evaluate, held_out_of_truth, knife_edge_runs, refit_progression,
-                         refit_with_noise, with_design_expectation)
+                         dominant_group, evaluate, held_out_of_truth, interval_dof, knife_edge_runs,
+                         refit_progression, refit_with_noise, with_design_expectation)
 from .outliers import (ALPHA_SCATTER, PROGRESSION_RULE, concentrated_rows, flaggable, outlier_rows, scattered_caveat,
                        scattered_level, scattered_rows, scattered_verdict)
 from .report import (_plot_residuals, box_edges, drawn_left_out, plain_summary, run_drift_records, run_drift_table,
@@ -86,8 +86,8 @@ __all__ = ["ALPHA_STRUCTURE", "Budget", "DYN_KINDS", "DynBound", "EFFORTS", "PRE
            "simulated_everywhere", "standardised_residual_sd", "trajectory_noise", "HELD_OUT_DRAWS",
            "REFIT_NOISE_RATIO", "above_linear_expectation", "bootstrap_intervals", "data_stream", "dominant_group",
            "evaluate", "held_out_of_truth", "knife_edge_runs", "refit_progression", "refit_with_noise",
-           "with_design_expectation", "ALPHA_SCATTER", "PROGRESSION_RULE", "concentrated_rows", "flaggable",
-           "outlier_rows", "scattered_caveat", "scattered_level", "scattered_rows", "scattered_verdict",
+           "with_design_expectation", "interval_dof", "ALPHA_SCATTER", "PROGRESSION_RULE", "concentrated_rows",
+           "flaggable", "outlier_rows", "scattered_caveat", "scattered_level", "scattered_rows", "scattered_verdict",
            "_plot_residuals", "box_edges", "drawn_left_out", "plain_summary", "run_drift_records", "run_drift_table",
            "run_residual_rates", "slope_se", "concentrated_verdict", "dynamics_covariates", "left_out_level_verdict",
            "_compare_fit", "_setup", "run_compare", "modes_of_best", "nested_first", "nested_starts", "probe_verdict",

@@ -3,6 +3,7 @@ parameter intervals, and write the metrics, residuals, figure and ledger row (:f
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Mapping
 
@@ -120,7 +121,10 @@ def run_compare(model: Model, df: pd.DataFrame, data_path: str, out_dir, ledger=
             rf, e.resid / np.sqrt(row_variance(e.sigma, e.sim))))
         rho = noise_rho(corr)
     if budget.bootstrap and bound.free:
-        ev.intervals, ev.stderr, ev.interval_method = bootstrap_intervals(ev, budget.bootstrap, budget, seed, rho)
+        # the noise estimate's degrees of freedom from its standard error (se = sd / sqrt(2 dof))
+        se_rel = float(noise.get("se") or 0.0) / float(noise["sd"]) if noise.get("sd") else 0.0
+        ev.intervals, ev.stderr, ev.interval_method = bootstrap_intervals(
+            ev, budget.bootstrap, budget, seed, rho, 0.5 / se_rel ** 2 if se_rel > 0 else math.inf)
     dh = data_hash(data_path)
     met = _metrics(ev, noise, data_path, dh, k_folds, how, budget)
     if ev.cv_expected is not None:
