@@ -89,3 +89,27 @@ def test_the_ledger_axis_is_logarithmic_when_the_errors_span_decades(tmp_path, m
     assert scales == ["log"]
     plot_ledger(hist.assign(cv_rmse=[3.43, 1.47], rmse=[3.4, 1.36], noise_sd=1.4), tmp_path / "lin.png")
     assert scales == ["log"]  # the second stays linear
+
+
+def test_a_logarithmic_ledger_axis_is_labelled_in_plain_numbers(tmp_path, monkeypatch):
+    """The log axis of the study's dynamics ledger (37.7 -> 0.592 mm/s, noise 0.454) reads 0.4, 0.6, 1, 10, 40,
+    as the values written beside the points do, not 4 x 10^-1 or 4e-01 (matplotlib's default and its plain
+    LogFormatter)."""
+    import pandas as pd
+
+    import capsule_cli.plots.loop as loop_plots
+
+    figs = []
+    monkeypatch.setattr(loop_plots, "save_figure", lambda fig, path: figs.append(fig) or path)
+    hist = pd.DataFrame({"model": ["base", "base+sdf"], "effects": ["", "speed_dependent_friction"],
+                         "cv_rmse": [37.7, 0.592], "cv_rmse_se": [6.8, 0.1], "rmse": [35.8, 0.44],
+                         "noise_sd": [0.454, 0.454], "noise_sd_se": [0.072, 0.072], "unit": ["mm/s"] * 2})
+    loop_plots.plot_ledger(hist, tmp_path / "log.png")
+    ax = figs[0].axes[0]
+    figs[0].canvas.draw()
+    assert ax.get_yscale() == "log"
+    major = [t.get_text() for t in ax.get_yticklabels() if t.get_text()]
+    minor = [t.get_text() for t in ax.get_yticklabels(minor=True) if t.get_text()]
+    assert {"1", "10"} <= set(major)
+    assert {"0.4", "0.6", "2", "40"} <= set(minor)
+    assert not [s for s in major + minor if "e" in s or "times" in s or "^" in s]

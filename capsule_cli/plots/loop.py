@@ -312,6 +312,9 @@ def plot_ledger(hist: pd.DataFrame, path: str | Path, title: str = "") -> Path:
     ax.set_xlim(-0.5, len(hist) - 0.5)
     if log:
         ax.set_yscale("log")
+        # plain numbers (6, 0.3), not 6 x 10^0: the reader compares them with the annotated values and the noise
+        ax.yaxis.set_major_formatter(_plain_log_formatter())
+        ax.yaxis.set_minor_formatter(_plain_log_formatter(minor=True))
     else:
         ax.set_ylim(0, None)
     ax.set_xlabel("model revision (effects added)")
@@ -319,6 +322,18 @@ def plot_ledger(hist: pd.DataFrame, path: str | Path, title: str = "") -> Path:
     ax.set_title(title or "error history")
     ax.legend(loc="upper right", fontsize=6)
     return save_figure(fig, path)
+
+
+def _plain_log_formatter(minor: bool = False):
+    """Return a log-axis tick formatter that writes plain numbers (0.3, 6, 40) where matplotlib's default writes
+    3 x 10^-1; minor ticks labelled only where the axis spans about two decades or less (its default rule)."""
+    from matplotlib.ticker import LogFormatter
+
+    class PlainLog(LogFormatter):
+        def __call__(self, x, pos=None):
+            return f"{x:g}" if super().__call__(x, pos) else ""
+
+    return PlainLog(labelOnlyBase=False, minor_thresholds=(2, 0.5)) if minor else PlainLog()
 
 
 def _class_colours(classes: tuple[str, ...]) -> dict[str, str]:
