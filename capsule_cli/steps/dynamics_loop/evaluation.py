@@ -216,8 +216,8 @@ def interval_dof(n_refits: int, noise_dof: float) -> float:
     """Return the degrees of freedom [-] of a bootstrap standard error whose noise is an estimate: the SD of
     ``n_refits`` refits has n_refits - 1, the noise SD the draws are made at has ``noise_dof`` (inf: known), and
     the SE scales with that noise SD, so the two relative errors add: 1 / nu = 1 / (n_refits - 1) + 1 / noise_dof
-    (Welch-Satterthwaite on the log variance: a variance estimate with nu degrees of freedom has a log variance of
-    variance about 2 / nu; Satterthwaite, Biometrics Bulletin 2, 1946).
+    (Welch-Satterthwaite on the log scale: the logarithm of a variance estimated with nu degrees of freedom varies
+    with a variance of about 2 / nu; Satterthwaite, Biometrics Bulletin 2, 1946).
 
     Why: on a small design the noise estimate is itself uncertain (six conditions and one free parameter without
     replicates: 5 degrees of freedom), and an interval drawn at it is as uncertain: with 20 refits nu is 4.0 and
