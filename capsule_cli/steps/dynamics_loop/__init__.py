@@ -53,43 +53,71 @@ One module per stage of the loop, each importing only from the ones before it:
 :mod:`.bound` (the model bound to a table, budgets, shared constants), :mod:`.calibration`, :mod:`.noise`,
 :mod:`.evaluation` (cross-validation, intervals, held-out expectation), :mod:`.outliers`, :mod:`.report`,
 :mod:`.verdicts`, and the three commands :mod:`.compare`, :mod:`.diagnose`, :mod:`.synth`.
-The names below are the package's public face (the CLI, benchmarks and tests use ``dynamics_loop.<name>``). To
-replace a function for a test, patch it in the module that calls it (``dynamics_loop.evaluation.calibrate``).
+Every public name of the modules is re-exported here, as the single module had them (the CLI, benchmarks
+and tests use ``dynamics_loop.<name>``). To replace a function for a test, patch it in the module that calls it
+(``dynamics_loop.evaluation.calibrate``).
 """
 from __future__ import annotations
 
 from ..verdict import ALPHA_STRUCTURE
-from .bound import (Budget, DYN_KINDS, DynBound, EFFORTS, PREDICTABLE_SPREAD_MM, PROBE_Z, RESPONSE_CLASSES,
-                    choose_modes, drift_noise_factor, drift_weights, frames_by_position, merge_modes,
-                    position_horizon_s, position_until, protocol_of, run_drift)
-from .calibration import Fit, RACE_DROP, RACE_FIRST, _nelder_mead, _std_sq, axis_scan, box_map, calibrate
-from .noise import (blocked_caveat, blocked_in_row_order, detrended_by_run, noise_of, progression_noise, record_serial,
-                    simulated_everywhere, standardised_residual_sd, trajectory_noise)
-from .evaluation import (HELD_OUT_DRAWS, REFIT_NOISE_RATIO, above_linear_expectation, bootstrap_intervals, data_stream,
-                         dominant_group, evaluate, held_out_of_truth, interval_dof, knife_edge_runs,
+from .bound import (Budget, choose_modes, COLD_STEP, drift_noise_factor, drift_weights, DRIVE_COLS, DYN_KINDS, DynBound,
+                    EFFORTS, engine_threads, FATOL_NOISE, frames_by_position, GRADUATED_ROUNDS, is_dynamics,
+                    MEMO_POINTS, MEMO_VALUES, merge_modes, MIN_HORIZON_PERIODS, MIN_NOISE_FRAMES, MODE_PASSES,
+                    ModelNotRunnable, MULTISTABLE_SPREAD_FRACTION, PARALLEL_ABOVE_S, PENALTY, position_horizon_s,
+                    position_rows, position_until, predictable, PREDICTABLE_SPREAD_MM, PROBE_TRIGGER, PROBE_Z,
+                    protocol_of, RESPONSE, RESPONSE_CLASSES, ROBUST_SCALE, row_variance, RUN_CLASS_PROTOCOL, run_drift,
+                    SERIAL_BELOW_PERIODS, START_OFFSETS_M, UNIT, WARM_STEP, whole_periods_s, XATOL)
+from .calibration import (axis_scan, AXIS_SCAN_POINTS, box_map, calibrate, DynEvaluation, Fit, HORIZON_BRANCHES,
+                          HORIZON_PERIODS, LINE_LEVELS, LINE_POINTS, line_refine, line_search_points, _nelder_mead,
+                          RACE_DROP, RACE_FIRST, _std_sq)
+from .noise import (blocked_caveat, blocked_in_row_order, correlated_noise, detrended_by_run, MIN_REPLICATE_DOF,
+                    noise_of, noise_rho, progression_noise, public_record, record_serial, replicate_noise_without_chaos,
+                    residual_fits, serial_noise, simulated_everywhere, standardised_residual_sd, trajectory_noise)
+from .evaluation import (above_linear_expectation, bootstrap_intervals, data_stream, dominant_cause, dominant_group,
+                         DOMINANT_MIN_GROUPS, DOMINANT_SHARE, evaluate, HELD_OUT_DRAWS, held_out_of_truth,
+                         held_out_record, interval_dof, KNIFE_EDGE_FACTOR, KNIFE_EDGE_FIT, knife_edge_fit_limit,
+                         knife_edge_records, KNIFE_EDGE_REL, knife_edge_runs, noise_draw, REFIT_NOISE_RATIO,
                          refit_progression, refit_with_noise, with_design_expectation)
-from .outliers import (ALPHA_SCATTER, PROGRESSION_RULE, concentrated_rows, flaggable, outlier_rows, scattered_caveat,
-                       scattered_level, scattered_rows, scattered_verdict)
-from .report import (_plot_residuals, box_edges, drawn_left_out, plain_summary, run_drift_records, run_drift_table,
-                     run_residual_rates, slope_se)
-from .verdicts import concentrated_verdict, dynamics_covariates, left_out_level_verdict
-from .compare import _compare_fit, _setup, run_compare
-from .diagnose import modes_of_best, nested_first, nested_starts, probe_verdict, run_diagnose
-from .synth import synthesize_progression, synthesize_trajectory
+from .outliers import (ALPHA_SCATTER, best_fit, best_fit_level, concentrated_rows, drift_frame_outliers,
+                       fit_outlier_rows, flaggable, no_effect_named, outlier_rows, OUTLIER_RULE, PROGRESSION_RULE,
+                       rows_chi2, scattered_caveat, scattered_level, scattered_rows, scattered_verdict)
+from .report import (box_edges, by_class, diagnosis_markdown, drawn_left_out, param_table, plain_summary,
+                     _plot_residuals, regime_of, residual_frame, residual_schema, run_drift_records, run_drift_table,
+                     run_drift_words, RUN_DRIFT_Z, RUN_MISFIT_Z, run_residual_rates, slope_se, summary_of)
+from .verdicts import (column_probes, concentrated_verdict, dynamics_covariates, dynamics_verdict,
+                       left_out_level_verdict, NOT_COVARIATES)
+from .compare import _compare_fit, compare_outlier_words, compare_outliers, run_compare, _setup
+from .diagnose import (consistent_base, fit_candidate, modes_of_best, needs_probes, nested_first, nested_starts,
+                       noise_excess, probe_verdict, run_diagnose)
+from .synth import synthesize_progression, synthesize_trajectory, write_synthetic
 from . import bound, calibration, compare, diagnose, evaluation, noise, outliers, report, synth, verdicts
 
-__all__ = ["ALPHA_STRUCTURE", "Budget", "DYN_KINDS", "DynBound", "EFFORTS", "PREDICTABLE_SPREAD_MM", "PROBE_Z",
-           "RESPONSE_CLASSES", "choose_modes", "drift_noise_factor", "drift_weights", "frames_by_position",
-           "merge_modes", "position_horizon_s", "position_until", "protocol_of", "run_drift", "Fit", "RACE_DROP",
-           "RACE_FIRST", "_nelder_mead", "_std_sq", "axis_scan", "box_map", "calibrate", "blocked_caveat",
-           "blocked_in_row_order", "detrended_by_run", "noise_of", "progression_noise", "record_serial",
-           "simulated_everywhere", "standardised_residual_sd", "trajectory_noise", "HELD_OUT_DRAWS",
-           "REFIT_NOISE_RATIO", "above_linear_expectation", "bootstrap_intervals", "data_stream", "dominant_group",
-           "evaluate", "held_out_of_truth", "knife_edge_runs", "refit_progression", "refit_with_noise",
-           "with_design_expectation", "interval_dof", "ALPHA_SCATTER", "PROGRESSION_RULE", "concentrated_rows",
-           "flaggable", "outlier_rows", "scattered_caveat", "scattered_level", "scattered_rows", "scattered_verdict",
-           "_plot_residuals", "box_edges", "drawn_left_out", "plain_summary", "run_drift_records", "run_drift_table",
-           "run_residual_rates", "slope_se", "concentrated_verdict", "dynamics_covariates", "left_out_level_verdict",
-           "_compare_fit", "_setup", "run_compare", "modes_of_best", "nested_first", "nested_starts", "probe_verdict",
-           "run_diagnose", "synthesize_progression", "synthesize_trajectory", "bound", "calibration", "compare",
-           "diagnose", "evaluation", "noise", "outliers", "report", "synth", "verdicts"]
+__all__ = ["ALPHA_STRUCTURE", "Budget", "choose_modes", "COLD_STEP", "drift_noise_factor", "drift_weights",
+           "DRIVE_COLS", "DYN_KINDS", "DynBound", "EFFORTS", "engine_threads", "FATOL_NOISE", "frames_by_position",
+           "GRADUATED_ROUNDS", "is_dynamics", "MEMO_POINTS", "MEMO_VALUES", "merge_modes", "MIN_HORIZON_PERIODS",
+           "MIN_NOISE_FRAMES", "MODE_PASSES", "ModelNotRunnable", "MULTISTABLE_SPREAD_FRACTION", "PARALLEL_ABOVE_S",
+           "PENALTY", "position_horizon_s", "position_rows", "position_until", "predictable", "PREDICTABLE_SPREAD_MM",
+           "PROBE_TRIGGER", "PROBE_Z", "protocol_of", "RESPONSE", "RESPONSE_CLASSES", "ROBUST_SCALE", "row_variance",
+           "RUN_CLASS_PROTOCOL", "run_drift", "SERIAL_BELOW_PERIODS", "START_OFFSETS_M", "UNIT", "WARM_STEP",
+           "whole_periods_s", "XATOL", "axis_scan", "AXIS_SCAN_POINTS", "box_map", "calibrate", "DynEvaluation", "Fit",
+           "HORIZON_BRANCHES", "HORIZON_PERIODS", "LINE_LEVELS", "LINE_POINTS", "line_refine", "line_search_points",
+           "_nelder_mead", "RACE_DROP", "RACE_FIRST", "_std_sq", "blocked_caveat", "blocked_in_row_order",
+           "correlated_noise", "detrended_by_run", "MIN_REPLICATE_DOF", "noise_of", "noise_rho", "progression_noise",
+           "public_record", "record_serial", "replicate_noise_without_chaos", "residual_fits", "serial_noise",
+           "simulated_everywhere", "standardised_residual_sd", "trajectory_noise", "above_linear_expectation",
+           "bootstrap_intervals", "data_stream", "dominant_cause", "dominant_group", "DOMINANT_MIN_GROUPS",
+           "DOMINANT_SHARE", "evaluate", "HELD_OUT_DRAWS", "held_out_of_truth", "held_out_record", "interval_dof",
+           "KNIFE_EDGE_FACTOR", "KNIFE_EDGE_FIT", "knife_edge_fit_limit", "knife_edge_records", "KNIFE_EDGE_REL",
+           "knife_edge_runs", "noise_draw", "REFIT_NOISE_RATIO", "refit_progression", "refit_with_noise",
+           "with_design_expectation", "ALPHA_SCATTER", "best_fit", "best_fit_level", "concentrated_rows",
+           "drift_frame_outliers", "fit_outlier_rows", "flaggable", "no_effect_named", "outlier_rows", "OUTLIER_RULE",
+           "PROGRESSION_RULE", "rows_chi2", "scattered_caveat", "scattered_level", "scattered_rows",
+           "scattered_verdict", "box_edges", "by_class", "diagnosis_markdown", "drawn_left_out", "param_table",
+           "plain_summary", "_plot_residuals", "regime_of", "residual_frame", "residual_schema", "run_drift_records",
+           "run_drift_table", "run_drift_words", "RUN_DRIFT_Z", "RUN_MISFIT_Z", "run_residual_rates", "slope_se",
+           "summary_of", "column_probes", "concentrated_verdict", "dynamics_covariates", "dynamics_verdict",
+           "left_out_level_verdict", "NOT_COVARIATES", "_compare_fit", "compare_outlier_words", "compare_outliers",
+           "run_compare", "_setup", "consistent_base", "fit_candidate", "modes_of_best", "needs_probes", "nested_first",
+           "nested_starts", "noise_excess", "probe_verdict", "run_diagnose", "synthesize_progression",
+           "synthesize_trajectory", "write_synthetic", "bound", "calibration", "noise", "evaluation", "outliers",
+           "report", "verdicts", "compare", "diagnose", "synth"]
