@@ -515,7 +515,7 @@ def design_excess(dd: DesignDraws, cv: float, unit: str = "") -> tuple[bool, str
     u = f" {unit}" if unit else ""
     rank = (f"above all {dd.draws} draws" if k == 0 else f"{k} of {dd.draws} draws as high or higher")
     return excess, (f"parametric bootstrap, {dd.draws} draws: {_g(dd.mean)} ± {_g(dd.sd)}{u}; {rank}, Monte Carlo "
-                    f"p = {_g(p)}, an excess needs p <= {_g(dist.norm_sf(EXCESS_Z))}")
+                    f"{p_text(p)}, an excess needs p <= {_g(dist.norm_sf(EXCESS_Z))}")
 
 
 def measurements_needed(f_stat: float, dk: int, n: int, k1: int, alpha: float,
@@ -803,14 +803,14 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
                 gain = (f"{win.name} lowers the held-out error by more than {NESTED_CV_Z:g} standard errors"
                         if how["nested"][first.name]["held_out_lower"] else f"{first.name} ends at a bound")
                 test = (f"{win.name} contains {first.name} ({how['nested'][first.name]['at']}): nested F test "
-                        f"p = {_g(alts[0][1])} >= {ALPHA_EFFECT:g}, but {gain}")
+                        f"{p_text(alts[0][1])} >= {ALPHA_EFFECT:g}, but {gain}")
                 why = f"{win.name} is named first by penalised fit (AICc)"
             elif first.name in how["nested"]:
                 test = (f"{first.name} contains {win.name} ({how['nested'][first.name]['at']}) and does not fit "
                         f"significantly better (nested F test {p_text(alts[0][1])} >= {ALPHA_EFFECT:g})")
                 why = f"{win.name}, the simpler, is named first"
             else:
-                test = f"Vuong test of the two fits p = {_g(alts[0][1])}"
+                test = f"Vuong test of the two fits {p_text(alts[0][1])}"
                 why = f"{win.name} is named first by penalised fit (AICc)"
             alt = (f"; {win.name} and {' and '.join(close)} are not separable by these data ({test}; held-out "
                    f"RMSE {_g(win.cv_rmse)} vs {_g(first.cv_rmse)} {unit}): {why}"
@@ -829,7 +829,7 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
             periodic = any(x["test"] == "periodogram" for x in own_left)
             if share >= PARTIAL_SHARE and not periodic:
                 msg = (f"partial step: {msg}. Structure remains against {s['covariate']} ({s['test']}, "
-                       f"p = {_g(s['p_value'])}{ptxt}): a second effect or a plugin; add {win.name} and run "
+                       f"{p_text(s['p_value'])}{ptxt}): a second effect or a plugin; add {win.name} and run "
                        "diagnose again")
                 return Verdict("missing_effect", win.name, s["covariate"], per, msg, partial=True, tests=tests,
                                structure_used=left, alternatives=close)
@@ -845,12 +845,12 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
             msg = (f"an effect that is not built in depends on {s['covariate']}{ptxt}: write a plugin. The closest "
                    f"built-in effect, {win.name}, {how} "
                    f"(held-out RMSE {_g(cv_base)} -> {_g(win.cv_rmse)} {unit}): structure remains against "
-                   f"{s['covariate']} ({s['test']}, p = {_g(s['p_value'])}); {noise_txt}{corr_txt}")
+                   f"{s['covariate']} ({s['test']}, {p_text(s['p_value'])}); {noise_txt}{corr_txt}")
             return Verdict("not_built_in", None, s["covariate"], per, msg, closest=win.name, tests=tests,
                            structure_used=left)
         if left:
             msg += (f". Structure remains against {left[0]['covariate']} ({left[0]['test']}, "
-                    f"p = {_g(left[0]['p_value'])}): after adding it, run diagnose again")
+                    f"{p_text(left[0]['p_value'])}): after adding it, run diagnose again")
         elif noise.reliable and np.isfinite(noise.sd):
             # the tool's own numbers: does the winner bring the held-out error down to the noise level?
             exp_w, se_w, z_w, over = winner_excess(win.sq_err, groups, noise, n, win.n_free, n_folds)
@@ -880,7 +880,7 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
         group = _partners(cov, coll)
         if len(group) > 1:
             msg = (f"the residuals depend on {' or '.join(group)}, which move together in these data (collinear): "
-                   f"the data cannot tell which one matters ({sig[0]['test']} p = {_g(sig[0]['p_value'])}; no "
+                   f"the data cannot tell which one matters ({sig[0]['test']} {p_text(sig[0]['p_value'])}; no "
                    f"built-in candidate passes the rule). Measure with one varied at fixed others; {noise_txt}"
                    f"{corr_txt}")
             return Verdict("cannot_tell", None, None, None, msg, confounded=group, tests=tests, structure_used=sig)
@@ -891,7 +891,7 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
         per = _period(structure, cov, alpha_structure) if cov in ordered else None
         ptxt = f" (period {_g(per)})" if per else ""
         msg = (f"an effect that is not built in depends on {cov}{ptxt}: write a plugin ({sig[0]['test']} "
-               f"p = {_g(sig[0]['p_value'])}; no built-in candidate passes the rule; {noise_txt}{corr_txt})")
+               f"{p_text(sig[0]['p_value'])}; no built-in candidate passes the rule; {noise_txt}{corr_txt})")
         return Verdict("not_built_in", None, cov, per, msg, tests=tests, structure_used=sig)
 
     serial = _significant(structure, alpha_structure, serial=True)
