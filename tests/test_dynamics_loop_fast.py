@@ -1967,3 +1967,53 @@ def test_a_response_multistable_at_the_fit_keeps_its_spread_held_out(monkeypatch
                                             bound=SimpleNamespace(kind="progression", df=pd.DataFrame(
                                                 {"f_Hz": np.arange(n) + 20.0, "Pd_N": 0.2}))))
     assert dom["group"] == "f_Hz = 27, Pd_N = 0.2" and dom["model_spread"] == 56.0
+
+
+def _jumpy_bound(jump):
+    """A stand-in for a bound (no engine): 7 conditions whose velocity 2 x_i theta moves smoothly with the one
+    parameter theta (predictable: one impact per period, no spread) and 3 chaotic ones (spread 5 mm/s) whose
+    velocity ``jump(theta)`` adds to the data's."""
+    x = np.arange(1.0, 8.0)
+    y = np.concatenate([2.0 * x * 0.3, [10.0, -20.0, 30.0]])
+
+    def simulate(theta, rows=None, classify=True, starts=False):
+        th = float(np.asarray(theta).ravel()[0])
+        return {"pred": np.concatenate([2.0 * x * th, y[7:] + jump(th)]),
+                "spread": np.array([0.0] * 7 + [5.0] * 3),
+                "cls": np.array(["one_impact"] * 7 + ["irregular"] * 3)}
+
+    return SimpleNamespace(simulate=simulate), y
+
+
+def _predictable_polish_from(theta0, jump):
+    bound, y = _jumpy_bound(jump)
+    idx = np.arange(y.size)
+
+    def raw(u):
+        return y - bound.simulate(u)["pred"]
+
+    nfev = [0]
+    u0 = np.array([theta0])
+    c0 = float(np.sum(raw(u0) ** 2))
+    return DL.calibration._predictable_polish(bound, y, None, idx, raw, lambda u: np.asarray(u, float), u0, c0,
+                                              None, 1.0, 40, nfev)
+
+
+def test_a_progression_fit_ends_with_a_polish_on_the_conditions_it_predicts():
+    """_predictable_polish: the chaotic conditions' velocities jump with the parameter (a needle in the sum of
+    squares), the predictable ones' do not; from theta 0.2 (true 0.3) the polish on the predictable conditions
+    reaches the truth to 1e-6, lowers the error model's chi-square and returns their indicator as the weights
+    (fold and bootstrap refits minimise the same sum)."""
+    u, c, w = _predictable_polish_from(0.2, lambda th: 3.0 * np.sin(1e4 * th) * np.ones(3))
+    assert u[0] == pytest.approx(0.3, abs=1e-6)
+    assert c == pytest.approx(0.0, abs=1e-9)
+    assert w.tolist() == [1.0] * 7 + [0.0] * 3
+
+
+def test_a_polish_on_the_predicted_conditions_is_kept_only_when_the_error_model_fits_better():
+    """The same, but every chaotic condition jumps 100 mm/s once theta leaves its start: the error model's
+    chi-square (each chaotic row weighs 1 / (1 + 5^2)) rises by 3 x 100^2 / 26 = 1154 against the 7 predictable
+    rows' gain of 0.056 (residuals 0.02 x_i at theta 0.29), so the fit and its weights stay as they were."""
+    u, c, w = _predictable_polish_from(0.29, lambda th: 0.0 if th == 0.29 else 100.0)
+    assert u[0] == 0.29 and w is None
+    assert c == pytest.approx(float(np.sum((2.0 * np.arange(1.0, 8.0) * 0.01) ** 2)), rel=1e-12)
