@@ -2013,7 +2013,14 @@ def test_a_progression_fit_ends_with_a_polish_on_the_conditions_it_predicts():
 def test_a_polish_on_the_predicted_conditions_is_kept_only_when_the_error_model_fits_better():
     """The same, but every chaotic condition jumps 100 mm/s once theta leaves its start: the error model's
     chi-square (each chaotic row weighs 1 / (1 + 5^2)) rises by 3 x 100^2 / 26 = 1154 against the 7 predictable
-    rows' gain of 0.056 (residuals 0.02 x_i at theta 0.29), so the fit and its weights stay as they were."""
-    u, c, w = _predictable_polish_from(0.29, lambda th: 0.0 if th == 0.29 else 100.0)
+    rows' gain of 5.6 (residuals 0.2 x_i at theta 0.2), so the fit and its weights stay as they were. Nor is a
+    gain below one degree of freedom's worth (s^2 = 1) kept: from theta 0.29, 0.056."""
+    x = np.arange(1.0, 8.0)
+    u, c, w = _predictable_polish_from(0.2, lambda th: 0.0 if th == 0.2 else 100.0)
+    assert u[0] == 0.2 and w is None
+    assert c == pytest.approx(float(np.sum((0.2 * x) ** 2)), rel=1e-12)
+    u, c, w = _predictable_polish_from(0.29, lambda th: 0.0)
     assert u[0] == 0.29 and w is None
-    assert c == pytest.approx(float(np.sum((2.0 * np.arange(1.0, 8.0) * 0.01) ** 2)), rel=1e-12)
+    assert c == pytest.approx(float(np.sum((0.02 * x) ** 2)), rel=1e-12)
+    u, c, w = _predictable_polish_from(0.2, lambda th: 0.0)  # the same start, nothing jumps: kept
+    assert u[0] == pytest.approx(0.3, abs=1e-6) and w.tolist() == [1.0] * 7 + [0.0] * 3

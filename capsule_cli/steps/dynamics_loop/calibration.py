@@ -237,7 +237,9 @@ def _predictable_polish(bound: DynBound, y: np.ndarray, rows, idx: np.ndarray, r
     """Return (u, cost, weights) of a progression fit after its last stage: the least-squares polish on the
     conditions the model predicts at u (:func:`predictable` at the residual scale ``s``: neither irregular nor
     multistable), each round kept only when it lowers the error model's chi-square on every fitted row
-    (:func:`_std_sq` at ``s``, each condition's spread over starting states at its own point). A kept round
+    (:func:`_std_sq` at ``s``, each condition's spread over starting states at its own point) by more than s^2,
+    one degree of freedom's worth (a smaller gain moves neither the F test nor AICc by more than about 1, and
+    would only trade the fit's weights for the indicator below). A kept round
     returns the indicator of those conditions as the weights, so that fold and bootstrap refits minimise the
     same sum.
 
@@ -261,7 +263,7 @@ def _predictable_polish(bound: DynBound, y: np.ndarray, rows, idx: np.ndarray, r
         sim_p = bound.simulate(to_theta(u_p), rows, starts=True)
         nfev[0] += 1
         chi_p = float(np.sum(_std_sq(y, sim_p, s, rows)))
-        if not chi_p < chi:
+        if not chi_p < chi - s ** 2:  # one degree of freedom's worth (refit_with_noise): less moves no test
             break
         u, c, sim, chi = u_p, c_p, sim_p, chi_p
         weights = np.zeros(y.size)
