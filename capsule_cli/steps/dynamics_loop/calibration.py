@@ -89,23 +89,23 @@ def calibrate(bound: DynBound, y: np.ndarray, sigma: float, rows=None, x0=None, 
     held-out RMSE on the predictable runs within 1.2x the noise in 18 of 21 against 3 of 21 before (with the
     runs' predictability horizons, :func:`choose_modes`, and knife edges, :func:`knife_edge_runs`).
 
-    Progression (three stages, then :func:`_predictable_polish`): the scan and the Nelder-Mead starts minimise the robust Cauchy loss of the
-    residuals weighted at the start (after ``refit_first``): the loss scale is ROBUST_SCALE x s_0, s_0 =
-    1.4826 median |r| there (at most sigma: a noise SD from differences, without replicates, is inflated
-    where the speed jumps between neighbouring conditions), and each condition's weight s_0 / sqrt(s_0^2 +
-    s_i^2), s_i its spread over starting states there (``simulate(starts=True)``); the scale shrinks while the
-    residuals show it too large (GRADUATED_ROUNDS). At the robust optimum the spreads are estimated again
-    and fix the weights w_i = sigma / sqrt(sigma^2 + s_i^2); a short Nelder-Mead (WARM_STEP simplex; only
-    when some weighted residual lies outside the Cauchy loss's quadratic zone, where the two optima differ)
-    and the polish then minimise the weighted sum of squares. The weights are fixed before each stage, so the
-    optimiser cannot buy a lower cost by moving to a chaotic response (the reason a spread-weighted cost is
-    not minimised directly). Before the start's scale and weights, a secondary constraint at the prototype's
-    values hidden in 40 conditions without replicates (sigma from differences 22.7 mm/s against noise 0.5)
-    was fitted by a Cauchy loss of scale 91 mm/s, least squares in effect, which the chaotic conditions
-    (spread over starts up to 44 mm/s) pulled away from the truth: on data from starts 1 nm from rest (an
-    independent simulator's rounding) held-out 0.76-16.7 mm/s on the predictable conditions in 4 data sets,
-    now 0.38-0.52. Last, the polish on the conditions the model predicts at the fit, kept when it lowers the
-    error model's chi-square (:func:`_predictable_polish`; its weights are then those conditions' indicator).
+    Progression (three stages, then :func:`_predictable_polish`): the scan and the Nelder-Mead starts minimise the
+    robust Cauchy loss of the residuals weighted at the start (after ``refit_first``): the loss scale is
+    ROBUST_SCALE x s_0, s_0 = 1.4826 median |r| there (at most sigma: a noise SD from differences, without
+    replicates, is inflated where the speed jumps between neighbouring conditions), and each condition's weight
+    s_0 / sqrt(s_0^2 + s_i^2), s_i its spread over starting states there (``simulate(starts=True)``); the scale shrinks
+    while the residuals show it too large (GRADUATED_ROUNDS). At the robust optimum the spreads are estimated again
+    and fix the weights w_i = sigma / sqrt(sigma^2 + s_i^2); a short Nelder-Mead (WARM_STEP simplex; only when some
+    weighted residual lies outside the Cauchy loss's quadratic zone, where the two optima differ) and the polish
+    then minimise the weighted sum of squares. The weights are fixed before each stage, so the optimiser cannot buy
+    a lower cost by moving to a chaotic response (the reason a spread-weighted cost is not minimised directly).
+    Before the start's scale and weights, a secondary constraint at the prototype's values hidden in 40 conditions
+    without replicates (sigma from differences 22.7 mm/s against noise 0.5) was fitted by a Cauchy loss of scale 91
+    mm/s, least squares in effect, which the chaotic conditions (spread over starts up to 44 mm/s) pulled away from
+    the truth: on data from starts 1 nm from rest (an independent simulator's rounding) held-out 0.76-16.7 mm/s on
+    the predictable conditions in 4 data sets, now 0.38-0.52. Last, the polish on the conditions the model predicts
+    at the fit, kept when it lowers the error model's chi-square by more than one degree of freedom's worth
+    (:func:`_predictable_polish`; the weights are then those conditions' indicator).
     """
     k = len(bound.free)
     start = bound.x0 if x0 is None else np.asarray(x0, float)
@@ -239,9 +239,8 @@ def _predictable_polish(bound: DynBound, y: np.ndarray, rows, idx: np.ndarray, r
     multistable), each round kept only when it lowers the error model's chi-square on every fitted row
     (:func:`_std_sq` at ``s``, each condition's spread over starting states at its own point) by more than s^2,
     one degree of freedom's worth (a smaller gain moves neither the F test nor AICc by more than about 1, and
-    would only trade the fit's weights for the indicator below). A kept round
-    returns the indicator of those conditions as the weights, so that fold and bootstrap refits minimise the
-    same sum.
+    would only trade the fit's weights for the indicator below). A kept round returns the indicator of those
+    conditions as the weights, so that fold and bootstrap refits minimise the same sum.
 
     ``raw(u)``: the residuals on the fitted rows ``idx`` at box point u; ``limit``: residual evaluations per
     round. A chaotic or multistable condition's velocity jumps as the parameters move by 1e-3 of their values
