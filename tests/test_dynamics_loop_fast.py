@@ -1971,10 +1971,12 @@ def test_a_response_multistable_at_the_fit_keeps_its_spread_held_out(monkeypatch
 
 def _jumpy_bound(jump):
     """A stand-in for a bound (no engine): 7 conditions whose velocity 2 x_i theta moves smoothly with the one
-    parameter theta (predictable: one impact per period, no spread) and 3 chaotic ones (spread 5 mm/s) whose
-    velocity ``jump(theta)`` adds to the data's."""
+    parameter theta (predictable: one impact per period, no spread), measured with the noise JUMPY_NOISE
+    (orthogonal to x, so that the least-squares theta is the true 0.3; residual SD at the fit
+    sqrt(4 / 6) = 0.816), and 3 chaotic ones (spread 5 mm/s) whose velocity ``jump(theta)`` adds to the
+    data's."""
     x = np.arange(1.0, 8.0)
-    y = np.concatenate([2.0 * x * 0.3, [10.0, -20.0, 30.0]])
+    y = np.concatenate([2.0 * x * 0.3 + JUMPY_NOISE, [10.0, -20.0, 30.0]])
 
     def simulate(theta, rows=None, classify=True, starts=False):
         th = float(np.asarray(theta).ravel()[0])
@@ -1985,7 +1987,10 @@ def _jumpy_bound(jump):
     return SimpleNamespace(simulate=simulate), y
 
 
-def _predictable_polish_from(theta0, jump):
+JUMPY_NOISE = np.array([1.0, 0.0, -1.0, 0.0, -1.0, 0.0, 1.0])
+
+
+def _predictable_polish_from(theta0, jump, s=1.0):
     bound, y = _jumpy_bound(jump)
     idx = np.arange(y.size)
 
@@ -1996,31 +2001,46 @@ def _predictable_polish_from(theta0, jump):
     u0 = np.array([theta0])
     c0 = float(np.sum(raw(u0) ** 2))
     return DL.calibration._predictable_polish(bound, y, None, idx, raw, lambda u: np.asarray(u, float), u0, c0,
-                                              None, 1.0, 40, nfev)
+                                              None, s, 40, nfev)
 
 
 def test_a_progression_fit_ends_with_a_polish_on_the_conditions_it_predicts():
     """_predictable_polish: the chaotic conditions' velocities jump with the parameter (a needle in the sum of
     squares), the predictable ones' do not; from theta 0.2 (true 0.3) the polish on the predictable conditions
-    reaches the truth to 1e-6, lowers the error model's chi-square and returns their indicator as the weights
-    (fold and bootstrap refits minimise the same sum)."""
+    reaches the least-squares theta (the truth) to 1e-6, lowers the error model's chi-square and returns their
+    indicator as the weights (fold and bootstrap refits minimise the same sum)."""
     u, c, w = _predictable_polish_from(0.2, lambda th: 3.0 * np.sin(1e4 * th) * np.ones(3))
     assert u[0] == pytest.approx(0.3, abs=1e-6)
-    assert c == pytest.approx(0.0, abs=1e-9)
+    assert c == pytest.approx(4.0, rel=1e-9)  # the noise's sum of squares
     assert w.tolist() == [1.0] * 7 + [0.0] * 3
 
 
 def test_a_polish_on_the_predicted_conditions_is_kept_only_when_the_error_model_fits_better():
     """The same, but every chaotic condition jumps 100 mm/s once theta leaves its start: the error model's
-    chi-square (each chaotic row weighs 1 / (1 + 5^2)) rises by 3 x 100^2 / 26 = 1154 against the 7 predictable
-    rows' gain of 5.6 (residuals 0.2 x_i at theta 0.2), so the fit and its weights stay as they were. Nor is a
-    gain below one degree of freedom's worth (s^2 = 1) kept: from theta 0.29, 0.056."""
+    chi-square at the polished conditions' residual SD s_c = 0.816 (each chaotic row weighs
+    s_c^2 / (s_c^2 + 5^2) = 0.026) rises by 3 x 100^2 x 0.026 = 779 against the 7 predictable rows' gain of 5.6
+    (residuals 0.2 x_i + noise at theta 0.2), so the fit and its weights stay as they were. Nor is a gain below
+    one degree of freedom's worth (s_c^2 = 0.667) kept: from theta 0.29, 0.056."""
     x = np.arange(1.0, 8.0)
     u, c, w = _predictable_polish_from(0.2, lambda th: 0.0 if th == 0.2 else 100.0)
     assert u[0] == 0.2 and w is None
-    assert c == pytest.approx(float(np.sum((0.2 * x) ** 2)), rel=1e-12)
+    assert c == pytest.approx(float(np.sum((0.2 * x + JUMPY_NOISE) ** 2)), rel=1e-12)
     u, c, w = _predictable_polish_from(0.29, lambda th: 0.0)
     assert u[0] == 0.29 and w is None
-    assert c == pytest.approx(float(np.sum((0.02 * x) ** 2)), rel=1e-12)
+    assert c == pytest.approx(float(np.sum((0.02 * x + JUMPY_NOISE) ** 2)), rel=1e-12)
     u, c, w = _predictable_polish_from(0.2, lambda th: 0.0)  # the same start, nothing jumps: kept
     assert u[0] == pytest.approx(0.3, abs=1e-6) and w.tolist() == [1.0] * 7 + [0.0] * 3
+
+
+def test_the_polish_weighs_the_chaotic_conditions_at_the_polished_conditions_noise_not_the_fits_misfit():
+    """The residual scale s handed to the polish comes from the median residual at the fit and holds its misfit
+    (here 3, against the polished conditions' residual SD 0.816). Every chaotic condition jumps by its spread
+    (5 mm/s) once theta leaves its start: at s = 3 each weighs 9 / 34, and the chi-square would rise by
+    3 x 25 x 0.265 = 19.9 against the gain 5.6 and refuse the step; at s_c = 0.816 the rise is 1.96, the step is
+    kept and theta reaches the truth (a secondary constraint at G_2 = 0.2 mm, 40 conditions, noise seed 1:
+    refused at s = 1.25 mm/s, held out 1.78 mm/s against the noise 0.5; kept at s_c = 0.38, 0.42 mm/s)."""
+    u, c, w = _predictable_polish_from(0.2, lambda th: 0.0 if th == 0.2 else 5.0, s=3.0)
+    assert u[0] == pytest.approx(0.3, abs=1e-6) and w.tolist() == [1.0] * 7 + [0.0] * 3
+    # a jump of 20 spreads is still refused at s_c
+    u, c, w = _predictable_polish_from(0.2, lambda th: 0.0 if th == 0.2 else 100.0, s=3.0)
+    assert u[0] == 0.2 and w is None
