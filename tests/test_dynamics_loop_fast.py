@@ -2021,7 +2021,7 @@ def test_a_polish_on_the_predicted_conditions_is_kept_only_when_the_error_model_
     chi-square at the polished conditions' residual SD s_c = 0.816 (each chaotic row weighs
     s_c^2 / (s_c^2 + 5^2) = 0.026) rises by 3 x 100^2 x 0.026 = 779 against the 7 predictable rows' gain of 5.6
     (residuals 0.2 x_i + noise at theta 0.2), so the fit and its weights stay as they were. Nor is a gain below
-    one degree of freedom's worth (s_c^2 = 0.667) kept: from theta 0.29, 0.056."""
+    one degree of freedom's worth (s^2 = 1) kept: from theta 0.29, 0.056."""
     x = np.arange(1.0, 8.0)
     u, c, w = _predictable_polish_from(0.2, lambda th: 0.0 if th == 0.2 else 100.0)
     assert u[0] == 0.2 and w is None
