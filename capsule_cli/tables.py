@@ -54,6 +54,38 @@ def atomic_path(path: str | os.PathLike):
         raise
 
 
+@contextlib.contextmanager
+def staged_folder(path: str | os.PathLike):
+    """Yield a temporary folder beside the output folder ``path``; on success move its files into ``path``.
+
+    A command writes its whole output set there (tables, figures, JSON). An error, Ctrl-C or SIGTERM before
+    the end leaves ``path`` as it was (no residual table without its metrics or figures, no new file beside an
+    older run's) and removes the temporary folder. On success ``path`` is created if need be and each file
+    moves in by one rename (the same file system), the renames with SIGINT / SIGTERM held
+    (:func:`capsule_cli.interrupts.deferred_signals`). Files already in ``path`` that this run does not write
+    are left alone.
+    """
+    import shutil
+
+    from .interrupts import deferred_signals
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    try:
+        yield stage
+        with deferred_signals():
+            path.mkdir(exist_ok=True)
+            for f in sorted(stage.rglob("*")):  # parents before their files
+                dest = path / f.relative_to(stage)
+                if f.is_dir():
+                    dest.mkdir(exist_ok=True)
+                else:
+                    os.replace(f, dest)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
 def _umask() -> int:
     """Return the process umask (read by setting and restoring it)."""
     mask = os.umask(0o022)

@@ -16,7 +16,10 @@ import pytest
 
 from capsule_cli.cli import main
 from capsule_cli.effects import registry
-from capsule_cli.tables import atomic_path, write_text_atomic
+from capsule_cli.cli import _wrapped_interrupt
+from capsule_cli.cli.common import Terminated
+from capsule_cli.interrupts import deferred_signals
+from capsule_cli.tables import atomic_path, staged_folder, write_text_atomic
 
 REPO = Path(__file__).resolve().parents[1]
 COULOMB = REPO / "configs" / "models" / "coulomb.yaml"
@@ -306,6 +309,79 @@ def test_an_interrupted_atomic_write_leaves_nothing(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_staged_folder_moves_in_the_whole_set_and_leaves_other_files_alone(tmp_path):
+    out = tmp_path / "cmp"
+    out.mkdir()
+    (out / "older_run.png").write_bytes(b"old")
+    (out / "metrics.json").write_text("old")
+    with staged_folder(out) as stage:
+        assert stage.parent == tmp_path and stage != out
+        (stage / "metrics.json").write_text("new")
+        (stage / "sub").mkdir()
+        write_text_atomic(stage / "sub" / "t.md", "x")
+    assert {p.relative_to(out).as_posix(): p.read_text() for p in files_under(out)} == {
+        "metrics.json": "new", "older_run.png": "old", "sub/t.md": "x"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cmp"]  # the stage is gone
+
+
+def test_an_interrupted_staged_folder_leaves_the_output_folder_as_it_was(tmp_path):
+    with pytest.raises(KeyboardInterrupt):
+        with staged_folder(tmp_path / "new") as stage:
+            (stage / "residuals.parquet").write_bytes(b"whole table, figures not yet drawn")
+            raise KeyboardInterrupt
+    assert list(tmp_path.iterdir()) == []
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "metrics.json").write_text("old")
+    with pytest.raises(Terminated):
+        with staged_folder(tmp_path / "old") as stage:
+            (stage / "metrics.json").write_text("new")
+            raise Terminated()
+    assert files_under(tmp_path) == [tmp_path / "old" / "metrics.json"]
+    assert (tmp_path / "old" / "metrics.json").read_text() == "old"
+
+
+def test_an_interrupt_while_compare_draws_its_figures_leaves_no_table_and_no_ledger_row(tmp_path, capsys,
+                                                                                        monkeypatch):
+    """compare wrote residuals.parquet and fit_curve.parquet, then drew its figures: a Ctrl-C there left the
+    tables without metrics.json (beside an older run's, when the folder held one)."""
+    from capsule_cli.plots import loop as plots
+
+    def interrupted(*_a, **_k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(plots, "plot_residuals", interrupted)
+    out, ledger = tmp_path / "cmp", tmp_path / "ledger.parquet"
+    data = friction_csv(tmp_path / "d.csv")
+    code, err = run(capsys, "compare", "--model", COULOMB, "--data", data, "--out", out, "--ledger", ledger)
+    assert code == 130 and err.strip() == "capsule-cli: interrupted"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.csv"]
+
+
+def test_signals_held_in_a_block_are_delivered_at_its_end():
+    reached = []
+    with pytest.raises(KeyboardInterrupt):
+        with deferred_signals():
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)  # a Python handler would have run by now
+            reached.append("end of block")
+    assert reached == ["end of block"]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler is back
+
+
+def test_an_interrupt_wrapped_by_a_c_extension_is_still_an_interrupt():
+    """numba's dispatcher turns a handler that ran while it returned into "returned a result with an
+    exception set", a SystemError caused by the KeyboardInterrupt: exit 130, not an internal error."""
+    for cause, code in ((KeyboardInterrupt(), 130), (Terminated(), 143), (ValueError("bug"), 0)):
+        try:
+            try:
+                raise cause
+            except BaseException as exc:
+                raise SystemError("CPUDispatcher(<function run_many>) returned a result with an exception set") \
+                    from exc
+        except SystemError as wrapped:
+            assert _wrapped_interrupt(wrapped) == code
+
+
 # ---------------------------------------------------------------------------
 # interrupts: SIGINT -> 130, SIGTERM -> 143, within seconds, nothing half-written
 
@@ -340,3 +416,35 @@ def test_signal_stops_a_long_fit_at_once(tmp_path, sig, code):
     assert len(err.strip().splitlines()) == 1 and ("interrupted" in err or "terminated" in err)
     assert not out.exists() or files_under(out) == []
     assert sorted(p.name for p in tmp_path.iterdir()) == ["big.csv"]  # no temporary files
+
+
+def test_ctrl_c_stops_a_dynamics_diagnose_at_once(tmp_path):
+    """The dynamics loop spends its time in the compiled engine (numba). A Ctrl-C that landed in one of its calls
+    ended as "internal error: SystemError: CPUDispatcher(...) returned a result with an exception set" (exit 1;
+    4 of 4 tries at 6-20 s), or, taken by an ``except Exception`` for a failed guess, let diagnose run to its end
+    (exit 0, every output written)."""
+    grid = pd.read_csv(REPO / "configs" / "designs" / "progression_grid.csv")
+    grid["velocity_mm_s"] = 0.8 * grid["f_Hz"] * grid["Pd_N"] ** 2 * 100.0  # any speeds: the fit is what runs
+    data = tmp_path / "speeds.csv"
+    grid.to_csv(data, index=False)
+    out = tmp_path / "diag"
+    exe = Path(sys.executable).with_name("capsule-cli")
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "capsule_cli"]
+    proc = subprocess.Popen([*cmd, "diagnose", "--model", str(REPO / "configs" / "models" / "progression_base.yaml"),
+                             "--data", str(data), "--out", str(out), "-q"], stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": str(REPO)}, cwd=tmp_path)
+    time.sleep(8.0)  # imports, the engine's cache and the first fits done on a loaded machine; now calibrating
+    assert proc.poll() is None, proc.stderr.read()
+    t0 = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    try:
+        rc = proc.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        raise
+    stop_s = time.monotonic() - t0
+    err = proc.stderr.read()
+    assert rc == 130, err
+    assert stop_s < 8.0, f"took {stop_s:.1f} s to stop"  # generous: the machine may be loaded (measured 0.2-0.4 s)
+    assert err.strip() == "capsule-cli: interrupted"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["speeds.csv"]  # no output folder, no stage left

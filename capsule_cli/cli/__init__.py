@@ -169,7 +169,11 @@ def _run(command, args: list[str], debug: bool) -> int:
     except Terminated:
         typer.echo("capsule-cli: terminated", err=True)
         return 143
-    except Exception as exc:  # a bug, unless an OSError on a user's path
+    except Exception as exc:  # a bug, unless an OSError on a user's path or an interrupt a C extension wrapped
+        signal_code = _wrapped_interrupt(exc)
+        if signal_code:
+            typer.echo("capsule-cli: " + ("interrupted" if signal_code == 130 else "terminated"), err=True)
+            return signal_code
         msg = oserror_message(exc) if isinstance(exc, OSError) else None
         if msg is not None and not debug:
             typer.echo(f"capsule-cli: error: {msg}", err=True)
@@ -180,6 +184,26 @@ def _run(command, args: list[str], debug: bool) -> int:
             typer.echo(f"capsule-cli: internal error: {type(exc).__name__}: {exc} "
                        "(rerun with --debug for a traceback)", err=True)
         return 1
+
+
+def _wrapped_interrupt(exc: BaseException) -> int:
+    """Return 130 (Ctrl-C) or 143 (SIGTERM) when ``exc`` was caused by the signal's exception, else 0.
+
+    A handler that runs while compiled code returns its result surfaces as "returned a result with an
+    exception set", a SystemError whose cause is the KeyboardInterrupt (the engine's calls hold the signals,
+    :func:`capsule_cli.interrupts.deferred_signals`; this is the net for any other extension)."""
+    from .common import Terminated
+
+    seen = set()
+    e = exc.__cause__ or exc.__context__
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        if isinstance(e, KeyboardInterrupt):
+            return 130
+        if isinstance(e, Terminated):
+            return 143
+        e = e.__cause__ or e.__context__
+    return 0
 
 
 def _one_line(exc: Exception) -> str:

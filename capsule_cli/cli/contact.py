@@ -262,7 +262,7 @@ def register(app: typer.Typer) -> None:
         from ..steps import contact as cstep
         from ..steps.relax import fit_prony
         from ..tables import (Column, TableSchema, provenance, read_measurements,
-                              write_json_atomic, write_table)
+                              staged_folder, write_json_atomic, write_table)
 
         if out is None:
             raise InputError("--out is required (a folder)")
@@ -311,13 +311,13 @@ def register(app: typer.Typer) -> None:
         src_prov = df.attrs.get("provenance") or {}
         prov = provenance(seed=seed, synthetic=bool(src_prov.get("synthetic", False)), data=str(data),
                           chosen_n_arms=fit.chosen)
-        out.mkdir(parents=True, exist_ok=True)
         record = fit.as_dict()
         record["data"] = str(data)
-        write_table(curve, out / "curve.parquet", curve_schema, prov)
-        write_table(res, out / "residuals.parquet", res_schema, prov)
-        plot_relax_fit(res, curve, out / "relax_fit.png", fit.chosen)
-        write_json_atomic(out / "fit.json", record)
+        with staged_folder(out) as stage:  # the whole set or nothing (an interrupt while plotting leaves no table)
+            write_table(curve, stage / "curve.parquet", curve_schema, prov)
+            write_table(res, stage / "residuals.parquet", res_schema, prov)
+            plot_relax_fit(res, curve, stage / "relax_fit.png", fit.chosen)
+            write_json_atomic(stage / "fit.json", record)
         pr = fit.parameters()
         lines = [f"chosen: {fit.chosen} arm(s) ({fit.cv_scheme}); R² = {fit.best.fit.r2:.4f}",
                  f"P_inf = {pr['P_inf_kPa']['value']:.4g} kPa [{pr['P_inf_kPa']['ci95'][0]:.4g}, "

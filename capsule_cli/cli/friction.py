@@ -66,7 +66,7 @@ def fit_cmd(
     check_outputs(folder=out)  # before any work (exit 2 naming the path)
     from ..plots.friction import plot_fit
     from ..steps.friction import BAND_SCHEMA, RESIDUALS_SCHEMA, fit_friction_law
-    from ..tables import provenance, read_measurements, write_json_atomic, write_table
+    from ..tables import provenance, read_measurements, staged_folder, write_json_atomic, write_table
 
     df, _ = read_measurements(data, kind="friction")
     if case is not None:
@@ -88,12 +88,12 @@ def fit_cmd(
                     "data_provenance": df.attrs.get("provenance") or {}})
     # a fit is not itself synthetic data; its lineage is recorded (data_synthetic)
     prov = provenance(seed=seed, synthetic=False, data_synthetic=synthetic, law=law.value, data=str(data))
-    out.mkdir(parents=True, exist_ok=True)
-    write_table(res.band, out / "band.parquet", BAND_SCHEMA, prov)
-    write_table(res.residuals, out / "residuals.parquet", RESIDUALS_SCHEMA, prov)
     label = "synthetic data (not measurements)" if synthetic else "data"
-    plot_fit(res.residuals, res.band, summary, out / "fit.png", data_label=label)
-    write_json_atomic(out / "fit.json", summary)
+    with staged_folder(out) as stage:  # the whole set or nothing (an interrupt while plotting leaves no table)
+        write_table(res.band, stage / "band.parquet", BAND_SCHEMA, prov)
+        write_table(res.residuals, stage / "residuals.parquet", RESIDUALS_SCHEMA, prov)
+        plot_fit(res.residuals, res.band, summary, stage / "fit.png", data_label=label)
+        write_json_atomic(stage / "fit.json", summary)
     if not quiet:
         typer.echo(f"{law.value}: " + ", ".join(
             f"{k} = {v['value']:.4g}" + ("" if v.get("fixed") else f" [{v['ci95'][0]:.4g}, {v['ci95'][1]:.4g}]")

@@ -18,47 +18,16 @@ runs that column of all rows in parallel.
 from __future__ import annotations
 
 import math
-import signal
-import threading
 import time
-from contextlib import contextmanager
 
 import numba
 import numpy as np
 
+from ..interrupts import deferred_signals
 from . import engine as E
 
 #: default wall time per chunk [s]: short enough that an interrupt lands within ~1 s
 TARGET_CHUNK_S = 0.2
-
-
-@contextmanager
-def deferred_signals(signals=(signal.SIGINT, signal.SIGTERM)):
-    """Hold SIGINT / SIGTERM while compiled code runs, then deliver them to the previous handlers.
-
-    A Python handler running while numba code is inside a call turns into "returned a result
-    with an exception set" (SystemError); holding the signal in a flag and re-raising it after
-    the call lets the process-level handlers (KeyboardInterrupt, exit 130 / 143) act cleanly,
-    one chunk later at most. Outside the main thread (where handlers cannot be set) a no-op.
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    got: list[int] = []
-    prev = {}
-    for sig in signals:
-        h = signal.getsignal(sig)
-        if h in (signal.SIG_IGN, None):  # ignored (e.g. a background job): leave it so
-            continue
-        prev[sig] = h
-        signal.signal(sig, lambda s, _f: got.append(s))
-    try:
-        yield
-    finally:
-        for sig, h in prev.items():
-            signal.signal(sig, h)
-        for sig in dict.fromkeys(got):
-            signal.raise_signal(sig)
 
 
 def continuation_state(final: np.ndarray) -> np.ndarray:
@@ -77,14 +46,20 @@ def run_many(P: np.ndarray, opts: np.ndarray, states0: np.ndarray, n_transient: 
     chaotic region runs every period, a settled one stops early): the eq 23 map ran on 1.5 of 2 cores.
     Points i, i + T, i + 2T, ... (T threads) form thread i's block, and the results go back in order; each
     point's result does not depend on which thread ran it. (One point at a time, numba's chunk size 1 under
-    OpenMP, cost more than it gained: 107-121 s against 105-108 s for Fig 19.)"""
+    OpenMP, cost more than it gained: 107-121 s against 105-108 s for Fig 19.)
+
+    SIGINT / SIGTERM are held during the compiled call (:func:`deferred_signals`) and delivered when it returns:
+    every caller (sweeps, maps, the dynamics loop's progression speeds) then sees KeyboardInterrupt, not a
+    SystemError that ``except Exception`` would take for a failure (a Ctrl-C once let ``diagnose`` run on)."""
     n = P.shape[0]
     nt = int(numba.get_num_threads())
     if nt < 2 or n <= nt:
-        return E.run_many(P, opts, states0, n_transient, n_record)
+        with deferred_signals():
+            return E.run_many(P, opts, states0, n_transient, n_record)
     perm = np.concatenate([np.arange(t, n, nt) for t in range(nt)])
-    st, per, en, fin = E.run_many(np.ascontiguousarray(P[perm]), opts, np.ascontiguousarray(states0[perm]),
-                                  n_transient, n_record)
+    with deferred_signals():
+        st, per, en, fin = E.run_many(np.ascontiguousarray(P[perm]), opts, np.ascontiguousarray(states0[perm]),
+                                      n_transient, n_record)
     inv = np.empty_like(perm)
     inv[perm] = np.arange(n)
     return st[inv], per[inv], en[inv], fin[inv]
@@ -126,8 +101,7 @@ def run_points(P: np.ndarray, opts: np.ndarray, states0: np.ndarray, n_transient
         k = int(chunk) if chunk else _next_size(i, t_run, target_chunk_s, n - i, minimum, k)
         k = max(1, min(k, n - i))
         t0 = time.perf_counter()
-        with deferred_signals():
-            st, per, _, fin = run_many(P[i:i + k], opts, states0[i:i + k], int(n_transient), int(n_record))
+        st, per, _, fin = run_many(P[i:i + k], opts, states0[i:i + k], int(n_transient), int(n_record))
         t_run += time.perf_counter() - t0
         status[i:i + k] = st
         periods[i:i + k] = per
@@ -153,8 +127,7 @@ def run_rows_continuation(P: np.ndarray, opts: np.ndarray, states0: np.ndarray, 
     periods = np.zeros((rows, cols, int(n_record), E.N_PERIOD_COLS))
     state = np.ascontiguousarray(states0, dtype=float).copy()
     for j in range(cols):
-        with deferred_signals():
-            st, per, _, fin = run_many(np.ascontiguousarray(P[:, j]), opts, state, int(n_transient), int(n_record))
+        st, per, _, fin = run_many(np.ascontiguousarray(P[:, j]), opts, state, int(n_transient), int(n_record))
         status[:, j] = st
         periods[:, j] = per
         state = continuation_state(fin)

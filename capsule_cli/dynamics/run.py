@@ -12,6 +12,7 @@ import numpy as np
 from ..errors import InputError
 from . import engine as E
 from .model import CapsuleModel, Drive, EngineOptions, Friction, pack_params
+from .parallel import deferred_signals
 
 
 class DynamicsError(InputError):
@@ -180,8 +181,9 @@ def run_arrays(model: CapsuleModel, drive: Drive, friction: Friction, periods: i
         n_samples = 0
     if n_samples > 20_000_000:
         raise InputError(f"{n_samples} trajectory samples requested; lower --sample-rate-Hz or --periods")
-    st, st_t, samples, ns, ev, nev, per, energy, final = E.run_core(
-        p, opts, s0, int(transient_periods), int(periods), dt, n_samples, -1 if record_events else 0)
+    with deferred_signals():  # a Ctrl-C during the compiled run: KeyboardInterrupt after it, not a SystemError
+        st, st_t, samples, ns, ev, nev, per, energy, final = E.run_core(
+            p, opts, s0, int(transient_periods), int(periods), dt, n_samples, -1 if record_events else 0)
     check_status(int(st), float(st_t), friction, where, model.plugin_forces)
     return RawRun(samples=samples[:ns], event_times_s=ev[:nev, 0], event_kinds=ev[:nev, 1], per=per,
                   energy=energy_record(energy, (options or EngineOptions()).energy), final_state=final,

@@ -19,7 +19,7 @@ from ..effects.model import BoundModel, Model
 from ..errors import InputError
 from ..fitting import DEGENERATE_CI_RATIO, FitResult, fit_least_squares, information_criteria, prediction_band
 from ..tables import (DYNAMICS_KINDS, Column, TableSchema, is_synthetic, provenance, response_column,
-                      write_json_atomic, write_table)
+                      staged_folder, write_json_atomic, write_table)
 from ..units import split_unit, unit_label
 from ..validation import check_model_output
 from . import crossval
@@ -291,17 +291,17 @@ def run_compare(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_d
     res = residual_frame(ev)
     main = main_covariate(df, kind)
     curves = fit_curves(ev, main)
-    out.mkdir(parents=True, exist_ok=True)
-    write_table(res, out / "residuals.parquet", residual_schema(res), prov)
-    write_table(curves, out / "fit_curve.parquet", CURVE_SCHEMA, {**prov, "covariate": main})
     covs = numeric_covariates(df, resp)
-    met["figures"] = []
-    if figures:
-        _figures(res, curves, main, resp, out, model, data_path, noise, covs, is_synthetic(df))
-        met["figures"] = ["fit.png", "residuals.png"]
-    write_json_atomic(out / "metrics.json", met)
-    if ledger is not None:
-        append_ledger(ledger, met)
+    with staged_folder(out) as stage:  # the whole set or nothing (an interrupt while plotting leaves no table)
+        write_table(res, stage / "residuals.parquet", residual_schema(res), prov)
+        write_table(curves, stage / "fit_curve.parquet", CURVE_SCHEMA, {**prov, "covariate": main})
+        met["figures"] = []
+        if figures:
+            _figures(res, curves, main, resp, stage, model, data_path, noise, covs, is_synthetic(df))
+            met["figures"] = ["fit.png", "residuals.png"]
+        write_json_atomic(stage / "metrics.json", met)
+        if ledger is not None:
+            append_ledger(ledger, met)
     return met
 
 

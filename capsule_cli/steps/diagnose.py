@@ -23,8 +23,8 @@ import yaml
 
 from ..effects.model import Model
 from ..effects.registry import Effect, base_name, effects as all_effects, next_instance, si_factor
-from ..tables import (DYNAMICS_KINDS, is_synthetic, provenance, response_column, write_json_atomic, write_table,
-                      write_text_atomic)
+from ..tables import (DYNAMICS_KINDS, is_synthetic, provenance, response_column, staged_folder, write_json_atomic,
+                      write_table, write_text_atomic)
 from ..units import split_unit, unit_label
 from ..validation import check_model_output
 from . import crossval
@@ -426,46 +426,47 @@ def run_diagnose(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_
     result["data_synthetic"] = bool(is_synthetic(df))
     out = Path(out_dir)
     # tables and figures
-    out.mkdir(parents=True, exist_ok=True)
-    prov = provenance(config_hash=model.hash, seed=seed, data_synthetic=is_synthetic(df), model=model.content, data=str(data_path), data_hash=dh)
-    res = residual_frame(base)
-    write_table(res, out / "residuals.parquet", residual_schema(res), prov)
-    figs = []
-    if figures:
-        from ..plots import loop as plots
+    prov = provenance(config_hash=model.hash, seed=seed, data_synthetic=is_synthetic(df), model=model.content,
+                      data=str(data_path), data_hash=dh)
+    with staged_folder(out) as stage:  # the whole set or nothing (an interrupt while plotting leaves no table)
+        res = residual_frame(base)
+        write_table(res, stage / "residuals.parquet", residual_schema(res), prov)
+        figs = []
+        if figures:
+            from ..plots import loop as plots
 
-        plots.plot_residuals(res, covs, resp, out / "residuals.png", noise_sd=sigma,
-                             title=f"{model.name}: residuals against each covariate")
-        figs.append("residuals.png")
-    if cands and figures:
-        ct = pd.DataFrame({"effect": [c.effect.name for c in cands], "cv_rmse": [c.ev.cv_rmse for c in cands],
-                           "cv_rmse_se": [c.ev.cv_rmse_se for c in cands]})
-        plots.plot_candidates(ct, base.cv_rmse, base.cv_rmse_se, sigma, unit, out / "candidates.png",
-                              winner=winner.effect.name if winner_named else None)
-        figs.append("candidates.png")
-        shown = winner if winner is not None else cands[0]
-        main = next((c for c in covs if base_name(c) in {base_name(x) for x in shown.effect.covariates}
-                     and df[c].nunique() >= 3), main_covariate(df, kind))
-        cres = residual_frame(shown.ev)
-        curves = fit_curves(shown.ev, main)
-        bcurves = fit_curves(base, main)
-        write_table(curves, out / "best_candidate_curve.parquet", CURVE_SCHEMA, {**prov, "covariate": main})
-        plots.plot_fit(cres, curves, main, resp, out / "best_candidate.png",
-                       title=f"{model.name} + {shown.effect.name}", extra=bcurves,
-                       data_label=plots.data_label(is_synthetic(df)),
-                       extra_label=f"{model.name} (as is)",
-                       outliers=pd.DataFrame(result["outliers"]) if result["outliers"] else None)
-        figs.append("best_candidate.png")
-    result["figures"] = figs
+            plots.plot_residuals(res, covs, resp, stage / "residuals.png", noise_sd=sigma,
+                                 title=f"{model.name}: residuals against each covariate")
+            figs.append("residuals.png")
+        if cands and figures:
+            ct = pd.DataFrame({"effect": [c.effect.name for c in cands], "cv_rmse": [c.ev.cv_rmse for c in cands],
+                               "cv_rmse_se": [c.ev.cv_rmse_se for c in cands]})
+            plots.plot_candidates(ct, base.cv_rmse, base.cv_rmse_se, sigma, unit, stage / "candidates.png",
+                                  winner=winner.effect.name if winner_named else None)
+            figs.append("candidates.png")
+            shown = winner if winner is not None else cands[0]
+            main = next((c for c in covs if base_name(c) in {base_name(x) for x in shown.effect.covariates}
+                         and df[c].nunique() >= 3), main_covariate(df, kind))
+            cres = residual_frame(shown.ev)
+            curves = fit_curves(shown.ev, main)
+            bcurves = fit_curves(base, main)
+            write_table(curves, stage / "best_candidate_curve.parquet", CURVE_SCHEMA, {**prov, "covariate": main})
+            plots.plot_fit(cres, curves, main, resp, stage / "best_candidate.png",
+                           title=f"{model.name} + {shown.effect.name}", extra=bcurves,
+                           data_label=plots.data_label(is_synthetic(df)),
+                           extra_label=f"{model.name} (as is)",
+                           outliers=pd.DataFrame(result["outliers"]) if result["outliers"] else None)
+            figs.append("best_candidate.png")
+        result["figures"] = figs
 
-    new_model_path = None
-    if write_model is not None:
-        chosen = winner if winner_named else (cands[0] if (add_best and cands) else None)
-        new_model_path = _write_model(model, chosen, Path(write_model), data_path, verdict, winner_named)
-        result["written_model"] = str(new_model_path)
-    write_json_atomic(out / "diagnosis.json", result)
-    write_text_atomic(out / "diagnosis.md", diagnosis_markdown(result, cands, base, winner if winner_named else None,
-                                                               new_model_path))
+        new_model_path = None
+        if write_model is not None:
+            chosen = winner if winner_named else (cands[0] if (add_best and cands) else None)
+            new_model_path = _write_model(model, chosen, Path(write_model), data_path, verdict, winner_named)
+            result["written_model"] = str(new_model_path)
+        write_json_atomic(stage / "diagnosis.json", result)
+        write_text_atomic(stage / "diagnosis.md", diagnosis_markdown(
+            result, cands, base, winner if winner_named else None, new_model_path))
     return result
 
 

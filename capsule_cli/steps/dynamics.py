@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..tables import Column, TableSchema, provenance, write_json_atomic, write_table
+from ..tables import Column, TableSchema, provenance, staged_folder, write_json_atomic, write_table
 from ..dynamics.model import (STEADY_SETTLE_TOL, CapsuleModel, Drive, EngineOptions, Friction, friction_preset,
                               load_model)
 from ..dynamics.run import simulate
@@ -139,12 +139,7 @@ def simulate_to_dir(out: Path, model: CapsuleModel, drive: Drive, friction: Fric
                      sample_rate_Hz=sample_rate_Hz, options=options)
     prov = _prov(model_name=model_name, model=model, drive=drive, friction=friction, periods=periods,
                  transient_periods=transient_periods, sample_rate_Hz=sample_rate_Hz)
-    out = Path(out)
-    write_table(trajectory_columns(res.samples), out / "trajectory.parquet", TRAJECTORY, prov)
-    write_table({"time_s": res.event_times_s, "kind": event_names(res.event_kinds)}, out / "events.parquet",
-                EVENTS, prov)
     per = period_columns(res.per, drive.frequency_Hz, transient_periods)
-    write_table(per, out / "periods.parquet", PERIODS, prov)
     n = len(per["period"])
     from ..dynamics.sweep import period_number
     summary = {
@@ -162,7 +157,12 @@ def simulate_to_dir(out: Path, model: CapsuleModel, drive: Drive, friction: Fric
                         "capsule_mm": res.final_state[2] * 1e3, "capsule_velocity_mm_s": res.final_state[3] * 1e3},
         "provenance": prov,
     }
-    write_json_atomic(out / "summary.json", summary)
+    with staged_folder(out) as stage:  # the four files or none (a long run's trajectory takes seconds to write)
+        write_table(trajectory_columns(res.samples), stage / "trajectory.parquet", TRAJECTORY, prov)
+        write_table({"time_s": res.event_times_s, "kind": event_names(res.event_kinds)}, stage / "events.parquet",
+                    EVENTS, prov)
+        write_table(per, stage / "periods.parquet", PERIODS, prov)
+        write_json_atomic(stage / "summary.json", summary)
     return summary
 
 
@@ -182,12 +182,12 @@ def sweep_to_dir(out: Path, model: CapsuleModel, drive: Drive, friction: Frictio
                  protocol=protocol, transient_periods=transient_periods, periods=periods, label=label,
                  settle_tol=settle_tol,
                  initial_state_SI=[0.0, 0.0, 0.0] if state0 is None else [float(x) for x in state0])
-    out = Path(out)
-    write_table(res.points, out / "points.parquet", SWEEP_POINTS, prov)
-    write_table(res.poincare, out / "sweep.parquet", SWEEP, prov)
     meta = {"parameter": param, "protocol": protocol, "label": label, "n_points": int(len(res.points)),
             "transient_periods": transient_periods, "periods": periods, "provenance": prov}
-    write_json_atomic(out / "sweep.json", meta)
+    with staged_folder(out) as stage:  # the three files or none
+        write_table(res.points, stage / "points.parquet", SWEEP_POINTS, prov)
+        write_table(res.poincare, stage / "sweep.parquet", SWEEP, prov)
+        write_json_atomic(stage / "sweep.json", meta)
     return meta
 
 

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from ...effects.model import Model
-from ...tables import is_synthetic, provenance, write_json_atomic, write_table
+from ...tables import is_synthetic, provenance, staged_folder, write_json_atomic, write_table
 from .. import crossval
 from ..verdict import Noise
 from .bound import Budget, DynBound, MULTISTABLE_SPREAD_FRACTION, UNIT, choose_modes, predictable, row_variance
@@ -150,16 +150,16 @@ def run_compare(model: Model, df: pd.DataFrame, data_path: str, out_dir, ledger=
             + f"; it drifts when the rate is {RUN_DRIFT_Z:g} SEs from zero and the frames' RMS standardised "
               f"residual is above {RUN_MISFIT_Z:g}")
     res = residual_frame(ev)
-    out.mkdir(parents=True, exist_ok=True)
-    write_table(res, out / "residuals.parquet", residual_schema(res), _prov(model, seed, df, data_path, dh))
-    met["figures"] = []
-    if figures:
-        _plot_residuals(res, ev, out / "residuals.png", f"{model.name}: residuals by condition and class",
-                        rho=rho)
-        met["figures"] = ["residuals.png"]
-    write_json_atomic(out / "metrics.json", met)
-    if ledger is not None:
-        append_ledger(ledger, met)
+    with staged_folder(out) as stage:  # the whole set or nothing (an interrupt while plotting leaves no table)
+        write_table(res, stage / "residuals.parquet", residual_schema(res), _prov(model, seed, df, data_path, dh))
+        met["figures"] = []
+        if figures:
+            _plot_residuals(res, ev, stage / "residuals.png", f"{model.name}: residuals by condition and class",
+                            rho=rho)
+            met["figures"] = ["residuals.png"]
+        write_json_atomic(stage / "metrics.json", met)
+        if ledger is not None:
+            append_ledger(ledger, met)
     return met
 
 

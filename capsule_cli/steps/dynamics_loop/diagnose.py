@@ -16,7 +16,7 @@ from ...effects import registry
 from ...effects.model import Model
 from ...effects.registry import Effect
 from ...errors import InputError
-from ...tables import write_json_atomic, write_table, write_text_atomic
+from ...tables import staged_folder, write_json_atomic, write_table, write_text_atomic
 from .. import crossval
 from ..residual_tests import structure_tests
 from ..verdict import (ALPHA_EFFECT, COLLINEAR_R, EXCESS_Z, Noise, RULE_TEXT, collinear_groups, collinear_with,
@@ -514,22 +514,22 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
                                            f"than {PREDICTABLE_SPREAD_MM:g} mm) -> average_velocity, and "
                                            "position to the last frame before they part when that is at least "
                                            f"{MIN_HORIZON_PERIODS:g} drive periods; else position")
-    out.mkdir(parents=True, exist_ok=True)
     res = residual_frame(base)
-    write_table(res, out / "residuals.parquet", residual_schema(res), _prov(model, seed, df, data_path, dh))
-    result["figures"] = []
-    if figures:
-        _plot_residuals(res, base, out / "residuals.png", f"{model.name}: residuals by condition and class",
-                        covariate=verdict.get("covariate") or verdict.get("confounded"), rho=rho,
-                        outliers=drawn_left_out(base, outliers_left_out or ()))
-        result["figures"].append("residuals.png")
-    if write_model is not None:
-        named = next((c for c in cands if c["effect"].name == verdict["missing_effect"]), None)
-        chosen = named or (cands[0] if (add_best and cands) else None)
-        _write_model(model, chosen, Path(write_model), data_path, verdict, named is not None)
-        result["written_model"] = str(write_model)
-    write_json_atomic(out / "diagnosis.json", result)
-    write_text_atomic(out / "diagnosis.md", diagnosis_markdown(result))
+    with staged_folder(out) as stage:  # the whole set or nothing (an interrupt while plotting leaves no table)
+        write_table(res, stage / "residuals.parquet", residual_schema(res), _prov(model, seed, df, data_path, dh))
+        result["figures"] = []
+        if figures:
+            _plot_residuals(res, base, stage / "residuals.png", f"{model.name}: residuals by condition and class",
+                            covariate=verdict.get("covariate") or verdict.get("confounded"), rho=rho,
+                            outliers=drawn_left_out(base, outliers_left_out or ()))
+            result["figures"].append("residuals.png")
+        if write_model is not None:
+            named = next((c for c in cands if c["effect"].name == verdict["missing_effect"]), None)
+            chosen = named or (cands[0] if (add_best and cands) else None)
+            _write_model(model, chosen, Path(write_model), data_path, verdict, named is not None)
+            result["written_model"] = str(write_model)
+        write_json_atomic(stage / "diagnosis.json", result)
+        write_text_atomic(stage / "diagnosis.md", diagnosis_markdown(result))
     return result
 
 
