@@ -69,7 +69,7 @@ def staged_folder(path: str | os.PathLike):
 
     from .interrupts import deferred_signals
 
-    path = Path(path)
+    path = Path(path).resolve()  # a folder that is a link to another disk: the stage beside its target (renames)
     path.parent.mkdir(parents=True, exist_ok=True)
     stage = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
     try:

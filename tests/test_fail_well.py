@@ -315,7 +315,7 @@ def test_a_staged_folder_moves_in_the_whole_set_and_leaves_other_files_alone(tmp
     (out / "older_run.png").write_bytes(b"old")
     (out / "metrics.json").write_text("old")
     with staged_folder(out) as stage:
-        assert stage.parent == tmp_path and stage != out
+        assert stage.parent == tmp_path.resolve() and stage != out.resolve()
         (stage / "metrics.json").write_text("new")
         (stage / "sub").mkdir()
         write_text_atomic(stage / "sub" / "t.md", "x")
