@@ -21,6 +21,7 @@ from ...dynamics import system as dsys
 from ...dynamics.model import EngineOptions, STEADY_SETTLE_TOL
 from ...effects.model import FreeParams, Model
 from ...errors import InputError
+from ...interrupts import deferred_signals
 
 
 DYN_KINDS = ("progression", "trajectory")
@@ -376,7 +377,11 @@ class DynBound(FreeParams):
         stays the one from rest). A trajectory's dict also holds ``noise_factor`` (:func:`row_variance`).
         """
         self.n_sim += 1
-        out = self._simulate(theta, rows, classify, starts)
+        if self.kind == "trajectory":  # one signal block for the runs (a few ms) instead of 15 us per run
+            with deferred_signals():
+                out = self._simulate(theta, rows, classify, starts)
+        else:  # one block per parallel call of the engine (each column of a continuation sweep)
+            out = self._simulate(theta, rows, classify, starts)
         if np.isfinite(out["pred"]).any():
             self.n_ran += 1
         return out
