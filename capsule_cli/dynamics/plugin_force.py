@@ -48,6 +48,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import InputError
+from ..interrupts import deferred_signals
 from . import engine as E
 
 #: the Python signature of a plugin force (documentation; see the module doc)
@@ -157,7 +158,8 @@ def _check_one(eff, jf, p: np.ndarray, where: str) -> None:
     label = f"{where}plugin force '{eff.name}' ({eff.origin})"
     for state in TRIAL_STATES:
         try:
-            r = jf(*state, p)
+            with deferred_signals():  # a Ctrl-C here: KeyboardInterrupt after the call, not "the plugin raised"
+                r = jf(*state, p)
         except NumbaError as exc:
             raise InputError(f"{label} does not compile with numba (nopython mode; use math and numbers, "
                              f"no dicts or Python objects): {_first_line(exc)}") from None
