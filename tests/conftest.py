@@ -1,6 +1,7 @@
 """Shared test helpers."""
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 import sys
@@ -31,3 +32,23 @@ def run_cli(*args: str, cwd: str | os.PathLike | None = None) -> subprocess.Comp
 def cli():
     """The ``run_cli`` helper as a fixture."""
     return run_cli
+
+
+@contextlib.contextmanager
+def plugin_loaded(path: Path):
+    """Load the plugin file ``path`` for the block, then unregister every effect it added.
+
+    A module fixture that leaves its plugin's effects registered hands them to every later test on its xdist
+    worker: the dynamics loop's plugin-force test, run after tests/test_dynamics_plugin_force.py, named that
+    module's attraction_t9f instead of its own magnet attraction."""
+    from capsule_cli.effects import registry
+
+    before = {(e.kind, e.name) for e in registry.effects()}
+    registry.load_plugins([path], entry_points=False)
+    try:
+        yield path
+    finally:
+        for e in registry.effects():
+            if (e.kind, e.name) not in before:
+                registry.unregister_effect(e.kind, e.name)
+        registry._LOADED_PLUGINS.discard(str(Path(path).resolve()))

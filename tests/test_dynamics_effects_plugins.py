@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from capsule_cli.dynamics.system import Protocol, build_system, progression, trajectory
-from capsule_cli.effects.registry import load_plugins
+from conftest import plugin_loaded
 from capsule_cli.errors import InputError, PluginError
 
 
@@ -43,8 +43,8 @@ PLUGIN = textwrap.dedent('''
 def plugin(tmp_path_factory):
     path = tmp_path_factory.mktemp("plug") / "coil_t9.py"
     path.write_text(PLUGIN)
-    load_plugins([path], entry_points=False)
-    return path
+    with plugin_loaded(path):  # unregistered afterwards: later tests on this worker must not see these effects
+        yield path
 
 
 def test_drive_transform_plugin_equals_the_transformed_conditions(plugin):

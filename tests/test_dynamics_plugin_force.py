@@ -17,13 +17,11 @@ import pandas as pd
 import pytest
 import yaml
 
-from capsule_cli.dynamics import engine as E
-from capsule_cli.dynamics.model import Drive, EngineOptions, friction_preset, load_model
+from capsule_cli.dynamics.model import Drive, friction_preset, load_model
 from capsule_cli.dynamics.run import simulate
 from capsule_cli.dynamics.system import Protocol, build_system, progression, trajectory
-from capsule_cli.effects import registry
-from capsule_cli.effects.registry import load_plugins
 from capsule_cli.errors import InputError
+from conftest import plugin_loaded
 
 
 PLUGIN = textwrap.dedent('''
@@ -96,16 +94,8 @@ PLUGIN = textwrap.dedent('''
 def plugin(tmp_path_factory):
     path = tmp_path_factory.mktemp("plugforce") / "forces_t9f.py"
     path.write_text(PLUGIN)
-    before = {(kind, e.name) for kind in ("progression", "trajectory") for e in registry.effects(kind)}
-    load_plugins([path], entry_points=False)
-    yield path
-    # a later test on this worker would see these forces as diagnose candidates (the dynamics loop's plugin-force
-    # test then named attraction_t9f, a twin of its own magnet attraction, when it ran after this module)
-    for kind in ("progression", "trajectory"):
-        for e in registry.effects(kind):
-            if (kind, e.name) not in before:
-                registry.unregister_effect(kind, e.name)
-    registry._LOADED_PLUGINS.discard(str(path.resolve()))
+    with plugin_loaded(path):  # unregistered afterwards: later tests on this worker must not see these forces
+        yield path
 
 
 def _events(r):
