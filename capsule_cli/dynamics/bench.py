@@ -23,9 +23,9 @@ import time
 
 import numpy as np
 
+from ..interrupts import deferred_signals
 from . import engine as E
 from .model import STEADY_SETTLE_TOL, Drive, EngineOptions, friction_preset, load_model, pack_params
-from .parallel import deferred_signals
 from .reference import ReferenceTimeout, reference_run
 from .run import simulate
 from .sweep import period_number

@@ -10,9 +10,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
+from ..interrupts import deferred_signals
 from . import engine as E
 from .model import CapsuleModel, Drive, EngineOptions, Friction, pack_params
-from .parallel import deferred_signals
 
 
 class DynamicsError(InputError):

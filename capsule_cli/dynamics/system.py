@@ -23,10 +23,11 @@ import numpy as np
 
 from ..config import load_param_set
 from ..errors import InputError, PluginError
+from ..interrupts import deferred_signals
 from . import engine as E
 from .model import (BASE_PARAM_SETS, MODEL_PARAM_NAMES, STEADY_SETTLE_TOL, CapsuleModel, Drive, EngineOptions,
                     Friction, friction_preset, pack_params)
-from .parallel import deferred_signals, period_numbers, run_many
+from .parallel import period_numbers, run_many
 from .run import check_status
 
 #: parameters every dynamics base takes (contract section 4 table); the double-sided base adds BACK_PARAMS
