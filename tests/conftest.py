@@ -20,12 +20,17 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
     os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 
-def run_cli(*args: str, cwd: str | os.PathLike | None = None) -> subprocess.CompletedProcess:
-    """Run ``capsule-cli`` in a subprocess (the real console entry point) and capture its output."""
+def cli_command(*args) -> tuple[list[str], dict]:
+    """Return (argv, environment) that run ``capsule-cli args`` from this checkout (the console entry point)."""
     exe = Path(sys.executable).with_name("capsule-cli")
     cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "capsule_cli"]
-    return subprocess.run([*cmd, *map(str, args)], capture_output=True, text=True, cwd=cwd,
-                          env={**os.environ, "PYTHONPATH": str(REPO)})
+    return [*cmd, *map(str, args)], {**os.environ, "PYTHONPATH": str(REPO)}
+
+
+def run_cli(*args: str, cwd: str | os.PathLike | None = None) -> subprocess.CompletedProcess:
+    """Run ``capsule-cli`` in a subprocess (the real console entry point) and capture its output."""
+    argv, env = cli_command(*args)
+    return subprocess.run(argv, capture_output=True, text=True, cwd=cwd, env=env)
 
 
 @pytest.fixture

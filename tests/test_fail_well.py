@@ -6,7 +6,6 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -20,6 +19,7 @@ from capsule_cli.cli import _wrapped_interrupt
 from capsule_cli.cli.common import Terminated
 from capsule_cli.interrupts import deferred_signals
 from capsule_cli.tables import atomic_path, staged_folder, write_text_atomic
+from conftest import cli_command
 
 REPO = Path(__file__).resolve().parents[1]
 COULOMB = REPO / "configs" / "models" / "coulomb.yaml"
@@ -389,10 +389,8 @@ def test_an_interrupt_wrapped_by_a_c_extension_is_still_an_interrupt():
 def signal_cli_after(args, delay_s: float, sig, cwd: Path) -> tuple[int, float, str]:
     """Run ``capsule-cli args`` in ``cwd``, send ``sig`` after ``delay_s`` (it must still run); return (exit code,
     seconds from the signal to the exit, stderr)."""
-    exe = Path(sys.executable).with_name("capsule-cli")
-    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "capsule_cli"]
-    proc = subprocess.Popen([*cmd, *map(str, args)], stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "PYTHONPATH": str(REPO)}, cwd=cwd)
+    argv, env = cli_command(*args)
+    proc = subprocess.Popen(argv, stderr=subprocess.PIPE, text=True, env=env, cwd=cwd)
     time.sleep(delay_s)
     assert proc.poll() is None, proc.stderr.read()
     t0 = time.monotonic()
