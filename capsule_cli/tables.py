@@ -12,6 +12,7 @@ import contextlib
 import io
 import json
 import os
+import socket
 import subprocess
 import sys
 import tempfile
@@ -33,6 +34,57 @@ PROVENANCE_KEY = b"capsule_cli"
 # atomic writes
 
 
+def _stage_prefix(path: Path) -> str:
+    """The temporary name's prefix for ``path``: hidden, then the writer's process and host, so that a later run
+    can tell a stage left by a killed process from one being written (:func:`remove_stale_stages`)."""
+    return f".{path.name}.pid{os.getpid()}@{socket.gethostname()}."
+
+
+def _process_gone(pid: int) -> bool:
+    """True when no process ``pid`` runs on this machine (a process of another user counts as running)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except OSError:  # PermissionError: it runs, as another user
+        return False
+    return False
+
+
+def remove_stale_stages(path: str | os.PathLike) -> list[Path]:
+    """Remove the temporary files and stage folders that runs killed while writing ``path`` left beside it.
+
+    SIGINT and SIGTERM remove them (:func:`atomic_path`, :func:`staged_folder`); SIGKILL, an out-of-memory kill or
+    a power cut cannot, and a stage can hold a long run's tables. A temporary is removed only when its name says
+    it was made on this host by a process that no longer runs, so that a run writing the same path elsewhere (a
+    cluster's shared disk) or now is never touched; one whose process number has since been reused stays. Names
+    of the form before this rule (no process in them) are left alone. Returns the paths removed.
+    """
+    import re
+    import shutil
+
+    path = Path(path)
+    pattern = re.compile(re.escape(f".{path.name}.pid") + r"(\d+)@(.+)\.[^.]+\.tmp")
+    host = socket.gethostname()
+    removed = []
+    try:
+        entries = list(os.scandir(path.parent))
+    except OSError:
+        return removed
+    for entry in entries:
+        m = pattern.fullmatch(entry.name)
+        if m is None or m.group(2) != host or int(m.group(1)) == os.getpid() or not _process_gone(int(m.group(1))):
+            continue
+        stale = Path(entry.path)
+        if entry.is_dir(follow_symlinks=False):
+            shutil.rmtree(stale, ignore_errors=True)
+        else:
+            with contextlib.suppress(FileNotFoundError):
+                stale.unlink()
+        removed.append(stale)
+    return removed
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike):
     """Yield a temporary path beside ``path``; move it into place only on success.
@@ -42,7 +94,8 @@ def atomic_path(path: str | os.PathLike):
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    remove_stale_stages(path)
+    fd, tmp = tempfile.mkstemp(prefix=_stage_prefix(path), suffix=".tmp", dir=path.parent)
     os.close(fd)
     try:
         yield Path(tmp)
@@ -63,7 +116,8 @@ def staged_folder(path: str | os.PathLike):
     older run's) and removes the temporary folder. On success ``path`` is created if need be and each file
     moves in by one rename (the same file system), the renames with SIGINT / SIGTERM held
     (:func:`capsule_cli.interrupts.deferred_signals`). Files already in ``path`` that this run does not write
-    are left alone.
+    are left alone. A stage that a killed run left (SIGKILL, a power cut) is removed by the next run that
+    writes ``path`` (:func:`remove_stale_stages`).
     """
     import shutil
 
@@ -71,7 +125,8 @@ def staged_folder(path: str | os.PathLike):
 
     path = Path(path).resolve()  # a folder that is a link to another disk: the stage beside its target (renames)
     path.parent.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    remove_stale_stages(path)
+    stage = Path(tempfile.mkdtemp(prefix=_stage_prefix(path), suffix=".tmp", dir=path.parent))
     try:
         yield stage
         with deferred_signals():
@@ -260,8 +315,27 @@ def write_table(df: pd.DataFrame | Mapping[str, np.ndarray], path: str | os.Path
         df = check_frame(df, schema)
         table = pa.Table.from_pandas(df, schema=schema.arrow_schema(df, meta), preserve_index=False)
     with atomic_path(path) as tmp:
-        pq.write_table(table, tmp)
+        write_parquet(table, tmp)
     return Path(path)
+
+
+#: rows per Parquet row group: pyarrow's default (``pq.write_table``), so the files are the same bytes
+ROW_GROUP_ROWS = 1 << 20
+
+
+def write_parquet(table: pa.Table, path: str | os.PathLike) -> None:
+    """Write ``table`` to ``path`` one row group at a time.
+
+    The same file, byte for byte, as ``pq.write_table`` (its row groups are the same size), but Ctrl-C and
+    SIGTERM are taken between row groups: one call for a 16.7-million-row trajectory (a `simulate` of 100,000
+    periods at 5 kHz) held them for 5.6 s, a row group takes about 0.35 s.
+    """
+    if table.num_rows <= ROW_GROUP_ROWS:
+        pq.write_table(table, path)
+        return
+    with pq.ParquetWriter(path, table.schema) as writer:
+        for start in range(0, table.num_rows, ROW_GROUP_ROWS):
+            writer.write_table(table.slice(start, ROW_GROUP_ROWS))
 
 
 #: pandas' own names of the declared dtypes, for the ``pandas`` schema metadata (Arrow's pandas

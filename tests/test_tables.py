@@ -125,3 +125,35 @@ def test_columns_path_writes_the_same_file_as_the_dataframe_path(tmp_path):
     with pytest.raises(ValueError, match="undeclared"):
         tables.write_table({**cols, "x_mm": cols["time_s"]}, tmp_path / "c.parquet", ALL_TYPES, prov)
     assert not (tmp_path / "c.parquet").exists()
+
+
+def test_a_long_table_is_written_by_row_groups_as_the_same_bytes(tmp_path, monkeypatch):
+    """write_parquet writes a long table one row group at a time (Ctrl-C is taken between groups); the file is
+    the same bytes as pyarrow's one-call write, whose default row group it uses."""
+    import hashlib
+
+    import numpy as np
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    monkeypatch.setattr(tables, "ROW_GROUP_ROWS", 1000)  # pq.write_table's own row groups set to match
+    n = 4500
+    t = pa.table({"time_s": np.linspace(0.0, 1.0, n), "n": np.arange(n)}, metadata={b"k": b"v"})
+    tables.write_parquet(t, tmp_path / "groups.parquet")
+    pq.write_table(t, tmp_path / "one.parquet", row_group_size=1000)
+    digest = [hashlib.sha256((tmp_path / f).read_bytes()).hexdigest() for f in ("groups.parquet", "one.parquet")]
+    assert digest[0] == digest[1]
+    assert pq.ParquetFile(tmp_path / "groups.parquet").metadata.num_row_groups == 5
+    assert pq.read_table(tmp_path / "groups.parquet").equals(t)
+
+
+def test_the_row_group_is_pyarrows_default(tmp_path):
+    """ROW_GROUP_ROWS is what pq.write_table uses when not told, so that a long table's file does not change."""
+    import numpy as np
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    n = tables.ROW_GROUP_ROWS + 10
+    pq.write_table(pa.table({"x": np.zeros(n, dtype=np.int8)}), tmp_path / "d.parquet")
+    md = pq.ParquetFile(tmp_path / "d.parquet").metadata
+    assert md.num_row_groups == 2 and md.row_group(0).num_rows == tables.ROW_GROUP_ROWS

@@ -23,7 +23,7 @@ import time
 
 import numpy as np
 
-from ..interrupts import deferred_signals
+from ..interrupts import compile_first, deferred_signals
 from . import engine as E
 from .model import STEADY_SETTLE_TOL, Drive, EngineOptions, friction_preset, load_model, pack_params
 from .reference import ReferenceTimeout, reference_run
@@ -74,6 +74,7 @@ def _engine_time(model, drive, fr, periods, repeat=5, events=False):
     p = pack_params(model, drive, fr)
     best = math.inf
     nev = 0
+    compile_first(E.run_core, p, opts, np.zeros(4), 0, int(periods), 1.0, 0, -1)
     for _ in range(repeat):
         with deferred_signals():  # a Ctrl-C: KeyboardInterrupt once the run returns, not a SystemError
             t = time.perf_counter()

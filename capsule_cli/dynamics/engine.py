@@ -2994,12 +2994,14 @@ def adaptive_segment(p, contact, shell, s, tau_end, fe_level, period, T, xr, vr,
     return status, status_t, ev, tau_ev, xr, vr, Xc, Vc, dsub, maxF, t_maxF, j_sample
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def run_core(p, opts, state0, n_transient, n_record, sample_dt, n_samples, ev_cap):
     """Run n_transient + n_record excitation periods from state0; return the records.
 
     Trajectory samples at t = j sample_dt (j < n_samples) after the transient; see
-    :func:`run_core_at` for the records.
+    :func:`run_core_at` for the records. Releases the GIL (``nogil``), so that a long run can go on in a
+    worker thread while the main thread takes Ctrl-C (:func:`capsule_cli.interrupts.call_interruptibly`);
+    the mode decomposition's object-mode block takes the GIL back for its few lines.
     """
     times = np.arange(n_samples) * sample_dt
     return run_core_at(p, opts, state0, n_transient, n_record, times, ev_cap)

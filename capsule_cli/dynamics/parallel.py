@@ -23,7 +23,7 @@ import time
 import numba
 import numpy as np
 
-from ..interrupts import deferred_signals
+from ..interrupts import deferred_call
 from . import engine as E
 
 #: default wall time per chunk [s]: short enough that an interrupt lands within ~1 s
@@ -48,18 +48,17 @@ def run_many(P: np.ndarray, opts: np.ndarray, states0: np.ndarray, n_transient: 
     point's result does not depend on which thread ran it. (One point at a time, numba's chunk size 1 under
     OpenMP, cost more than it gained: 107-121 s against 105-108 s for Fig 19.)
 
-    SIGINT / SIGTERM are held during the compiled call (:func:`deferred_signals`) and delivered when it returns:
+    SIGINT / SIGTERM are held during the compiled call (:func:`deferred_call`; not while it is first compiled) and
+    delivered when it returns:
     every caller (sweeps, maps, the dynamics loop's progression speeds) then sees KeyboardInterrupt, not a
     SystemError that ``except Exception`` would take for a failure (a Ctrl-C once let ``diagnose`` run on)."""
     n = P.shape[0]
     nt = int(numba.get_num_threads())
     if nt < 2 or n <= nt:
-        with deferred_signals():
-            return E.run_many(P, opts, states0, n_transient, n_record)
+        return deferred_call(E.run_many, P, opts, states0, n_transient, n_record)
     perm = np.concatenate([np.arange(t, n, nt) for t in range(nt)])
-    with deferred_signals():
-        st, per, en, fin = E.run_many(np.ascontiguousarray(P[perm]), opts, np.ascontiguousarray(states0[perm]),
-                                      n_transient, n_record)
+    st, per, en, fin = deferred_call(E.run_many, np.ascontiguousarray(P[perm]), opts,
+                                     np.ascontiguousarray(states0[perm]), n_transient, n_record)
     inv = np.empty_like(perm)
     inv[perm] = np.arange(n)
     return st[inv], per[inv], en[inv], fin[inv]

@@ -48,7 +48,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import InputError
-from ..interrupts import deferred_signals
+from ..interrupts import deferred_call
 from . import engine as E
 
 #: the Python signature of a plugin force (documentation; see the module doc)
@@ -158,8 +158,7 @@ def _check_one(eff, jf, p: np.ndarray, where: str) -> None:
     label = f"{where}plugin force '{eff.name}' ({eff.origin})"
     for state in TRIAL_STATES:
         try:
-            with deferred_signals():  # a Ctrl-C here: KeyboardInterrupt after the call, not "the plugin raised"
-                r = jf(*state, p)
+            r = deferred_call(jf, *state, p)  # a Ctrl-C: KeyboardInterrupt after the call, not "the plugin raised"
         except NumbaError as exc:
             raise InputError(f"{label} does not compile with numba (nopython mode; use math and numbers, "
                              f"no dicts or Python objects): {_first_line(exc)}") from None

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
-from ..interrupts import deferred_signals
+from ..interrupts import call_interruptibly, deferred_call
 from . import engine as E
 from .model import CapsuleModel, Drive, EngineOptions, Friction, pack_params
 
@@ -162,8 +162,13 @@ class RawRun:
 def run_arrays(model: CapsuleModel, drive: Drive, friction: Friction, periods: int = 50,
                transient_periods: int = 0, sample_rate_Hz: float = 0.0, state0=None,
                options: EngineOptions | None = None, record_events: bool = True,
-               where: str = "") -> RawRun:
-    """Run the engine and return its records as arrays; arguments as :func:`simulate`."""
+               where: str = "", interruptible: bool = False) -> RawRun:
+    """Run the engine and return its records as arrays; arguments as :func:`simulate`.
+
+    interruptible : run the compiled call in a worker thread (:func:`capsule_cli.interrupts.call_interruptibly`),
+    so that Ctrl-C stops the caller at once rather than when the run ends (`simulate` of millions of periods);
+    otherwise the signals are held for the call and delivered after it.
+    """
     model.validate()
     drive.validate()
     friction.validate()
@@ -181,9 +186,12 @@ def run_arrays(model: CapsuleModel, drive: Drive, friction: Friction, periods: i
         n_samples = 0
     if n_samples > 20_000_000:
         raise InputError(f"{n_samples} trajectory samples requested; lower --sample-rate-Hz or --periods")
-    with deferred_signals():  # a Ctrl-C during the compiled run: KeyboardInterrupt after it, not a SystemError
-        st, st_t, samples, ns, ev, nev, per, energy, final = E.run_core(
-            p, opts, s0, int(transient_periods), int(periods), dt, n_samples, -1 if record_events else 0)
+    args = (p, opts, s0, int(transient_periods), int(periods), dt, n_samples, -1 if record_events else 0)
+    if interruptible:
+        st, st_t, samples, ns, ev, nev, per, energy, final = call_interruptibly(E.run_core, *args)
+    else:
+        # a Ctrl-C during the compiled run: KeyboardInterrupt after it, not a SystemError
+        st, st_t, samples, ns, ev, nev, per, energy, final = deferred_call(E.run_core, *args)
     check_status(int(st), float(st_t), friction, where, model.plugin_forces)
     return RawRun(samples=samples[:ns], event_times_s=ev[:nev, 0], event_kinds=ev[:nev, 1], per=per,
                   energy=energy_record(energy, (options or EngineOptions()).energy), final_state=final,

@@ -23,7 +23,7 @@ import numpy as np
 
 from ..config import load_param_set
 from ..errors import InputError, PluginError
-from ..interrupts import deferred_signals
+from ..interrupts import deferred_call
 from . import engine as E
 from .model import (BASE_PARAM_SETS, MODEL_PARAM_NAMES, STEADY_SETTLE_TOL, CapsuleModel, Drive, EngineOptions,
                     Friction, friction_preset, pack_params)
@@ -379,8 +379,8 @@ def trajectory(system: DynSystem, f_Hz: float, Pd_N: float, time_s, duty=None, w
     opts = replace(options or EngineOptions(), energy=False).pack()
     state0 = np.zeros(4)
     state0[0] = float(start_offset_m)
-    with deferred_signals():  # a Ctrl-C during the compiled run: KeyboardInterrupt after it, not a SystemError
-        st, st_t, sm, ns, *_ = E.run_core_at(system.params_row(d), opts, state0, 0, n_periods, ts, 0)
+    # a Ctrl-C during the compiled run: KeyboardInterrupt after it, not a SystemError
+    st, st_t, sm, ns, *_ = deferred_call(E.run_core_at, system.params_row(d), opts, state0, 0, n_periods, ts, 0)
     check_status(int(st), float(st_t), system.friction(), f"trajectory f = {d.frequency_Hz:g} Hz",
                  system.model.plugin_forces)
     if ns != ts.size:

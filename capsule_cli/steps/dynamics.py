@@ -136,7 +136,7 @@ def simulate_to_dir(out: Path, model: CapsuleModel, drive: Drive, friction: Fric
 
     # arrays straight to Parquet: no pandas on this path (start-up of a short `simulate`, issue 13)
     res = run_arrays(model, drive, friction, periods=periods, transient_periods=transient_periods,
-                     sample_rate_Hz=sample_rate_Hz, options=options)
+                     sample_rate_Hz=sample_rate_Hz, options=options, interruptible=True)  # one call: Ctrl-C at once
     prov = _prov(model_name=model_name, model=model, drive=drive, friction=friction, periods=periods,
                  transient_periods=transient_periods, sample_rate_Hz=sample_rate_Hz)
     per = period_columns(res.per, drive.frequency_Hz, transient_periods)

@@ -377,7 +377,9 @@ class DynBound(FreeParams):
         stays the one from rest). A trajectory's dict also holds ``noise_factor`` (:func:`row_variance`).
         """
         self.n_sim += 1
-        if self.kind == "trajectory":  # one signal block for the runs (a few ms) instead of 15 us per run
+        if self.kind == "trajectory" and dsys.E.run_core_at.overloads:
+            # one signal block for the runs (a few ms) instead of 15 us per run; not before the engine is compiled
+            # (the first runs compile it, minutes with a cold cache, with the signals free: deferred_call)
             with deferred_signals():
                 out = self._simulate(theta, rows, classify, starts)
         else:  # one block per parallel call of the engine (each column of a continuation sweep)
