@@ -108,8 +108,9 @@ def call_interruptibly(fn, *args):
     """Return ``fn(*args)``, run in a worker thread while the main thread waits, so that a SIGINT / SIGTERM
     stops the caller at once (within 0.1 s) instead of when ``fn`` returns.
 
-    ``fn`` must release the GIL (a numba function compiled with ``nogil=True``): the main thread waits in
-    ``Thread.join``, which a signal interrupts, and its handler raises there. An exception of ``fn`` is
+    ``fn`` must let the GIL go: a numba function compiled with ``nogil=True``, or Python code such as numba's
+    compiler (which gives it up at the interpreter's switch interval and in its ctypes calls). The main thread
+    waits in ``Thread.join``, which a signal interrupts, and its handler raises there. An exception of ``fn`` is
     raised here. On an interrupt the worker is left to finish on its own (a daemon thread: a command that exits
     on the interrupt ends it with the process); its result is dropped, and no Python object is shared with it
     but ``args``. Outside the main thread ``fn`` is called directly.
