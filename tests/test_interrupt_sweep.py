@@ -1,25 +1,20 @@
 """Ctrl-C / SIGTERM during a long sweep: prompt stop, exit 130 / killed by SIGTERM, no partial files
 (issue 13 item 3; compiled work returns to Python between chunks of about 0.2 s)."""
-import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
+from conftest import cli_command
 
 
 def _start(out: Path):
-    exe = Path(sys.executable).with_name("capsule-cli")
-    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "capsule_cli"]
     # 30-60 s of work on a quiet 2-core machine (6000 points took 3.6 s in session 12, less than the wait
     # before the signal): it cannot finish before the signal
-    args = ["sweep", "--out", str(out), "--start", "5", "--stop", "40", "--num", "60000", "--quiet"]
-    return subprocess.Popen([*cmd, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "PYTHONPATH": str(REPO)})
+    argv, env = cli_command("sweep", "--out", out, "--start", "5", "--stop", "40", "--num", "60000", "--quiet")
+    return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
