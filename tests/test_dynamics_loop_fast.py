@@ -1376,7 +1376,7 @@ def test_trajectory_residual_figure_has_a_row_of_run_drift_rates_by_drive_and_th
     assert np.all(np.abs(per_run["rate_mm_s"] - 0.5 * (per_run["f_Hz"] - 30.0)) < 4 * se)
     ev = SimpleNamespace(bound=SimpleNamespace(kind="trajectory"), sigma=0.05)
     fig = DL._plot_residuals(res, ev, tmp_path / "r.png", "test", covariate="temperature_C")
-    assert [ax.get_xlabel() for ax in fig.axes] == ["time [s]", "f [Hz] of the run", "Pd [N] of the run",
+    assert [ax.get_xlabel() for ax in fig.axes] == ["time [s]", "f [Hz] of the run", "$P_d$ [N] of the run",
                                                     "temperature [°C] of the run"]
     assert all("[mm/s]" in ax.get_ylabel() for ax in fig.axes[1:]) and "[mm]" in fig.axes[0].get_ylabel()
     f_ax = fig.axes[1]
@@ -1394,7 +1394,7 @@ def test_trajectory_residual_figure_has_a_row_of_run_drift_rates_by_drive_and_th
     assert [e for _, e in placed] == sorted(tail) and np.all(np.diff([f for f, _ in placed]) >= 0.07 - 1e-12)
     assert 0.0 <= placed[0][0] and placed[-1][0] <= 1.0
     fig = DL._plot_residuals(res, ev, tmp_path / "r2.png", "test", covariate="f_Hz")
-    assert [ax.get_xlabel() for ax in fig.axes][1:] == ["f [Hz] of the run", "Pd [N] of the run"]
+    assert [ax.get_xlabel() for ax in fig.axes][1:] == ["f [Hz] of the run", "$P_d$ [N] of the run"]
     assert (tmp_path / "r2.png").stat().st_size > 0
 
 
@@ -1521,11 +1521,11 @@ def test_progression_residual_figure_has_a_panel_per_drive_covariate_and_the_one
                         "response_class": ["one_impact"] * 4})
     ev = SimpleNamespace(bound=SimpleNamespace(kind="progression"), sigma=0.5)
     fig = DL._plot_residuals(res, ev, tmp_path / "r.png", "test", covariate="temperature_C")
-    assert [ax.get_xlabel() for ax in fig.axes] == ["f [Hz]", "Pd [N]", "temperature [°C]"]
+    assert [ax.get_xlabel() for ax in fig.axes] == ["f [Hz]", "$P_d$ [N]", "temperature [°C]"]
     assert all("[mm/s]" in ax.get_ylabel() for ax in fig.axes)
     assert list(fig.axes[2].get_lines()[0].get_ydata()) == [0.1, -2.0, 3.0, 0.4]
     fig = DL._plot_residuals(res, ev, tmp_path / "r2.png", "test", covariate="Pd_N")
-    assert [ax.get_xlabel() for ax in fig.axes] == ["f [Hz]", "Pd [N]"]
+    assert [ax.get_xlabel() for ax in fig.axes] == ["f [Hz]", "$P_d$ [N]"]
     # a reading left out as an outlier is drawn at its residual in every panel, not silently dropped
     gross = {"row": 4, "z": 12.0, "threshold": 3.8, "model": "the model as is", "residual": 6.0, "f_Hz": 34.0,
              "Pd_N": 0.2, "velocity_mm_s": 60.0}

@@ -10,9 +10,13 @@ from ..units import split_unit, unit_label
 from .style import OKABE_ITO, blank_figure, figure, label, save_figure
 
 
+#: covariates whose axis takes the papers' symbol (seed 000 eq 19: the drive amplitude P_d) instead of the column name
+_SYMBOLS = {"Pd": "$P_d$"}
+
+
 def _nice(col: str) -> str:
     base, suffix = split_unit(col)
-    return label(base.replace("_", " "), unit_label(col) if suffix else "")
+    return label(_SYMBOLS.get(base, base.replace("_", " ")), unit_label(col) if suffix else "")
 
 
 def _cols(resp: str):
