@@ -74,12 +74,12 @@ def exit_on_interrupt():
 
     Long work returns to Python between chunks (:mod:`.dynamics.parallel`), so the interrupt
     lands within about a chunk; outputs are written only after the work, atomically, so an
-    interrupted command leaves no file behind.
+    interrupted command leaves no file behind. The one line "capsule-cli: interrupted" is the CLI's
+    (:func:`capsule_cli.cli.main` says it for every exit 130); written here too, it came twice.
     """
     try:
         yield
     except KeyboardInterrupt:
         import typer
 
-        sys.stderr.write("capsule-cli: interrupted\n")
         raise typer.Exit(130) from None
