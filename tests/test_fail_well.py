@@ -204,6 +204,28 @@ def test_a_dynamics_model_the_engine_cannot_run_anywhere_is_exit_2_not_a_fit(tmp
     assert not (tmp_path / "cmp").exists() or not files_under(tmp_path / "cmp")
 
 
+@pytest.mark.parametrize("param, value, said", [
+    ("spring_N_m", "0", "spring_N_m must be a positive number, got 0.0"),
+    ("mass_capsule_g", "-1", "mass_capsule_kg must be a positive number, got -0.001"),
+    ("constraint_N_m", "-5", "constraint_N_m must be a non-negative number, got -5.0")])
+def test_a_model_file_value_no_capsule_has_is_exit_2_naming_the_model_file(tmp_path, capsys, param, value, said):
+    """A fixed value that makes no capsule (a spring of 0 N/m) is the model file's error, said before any work.
+    Before, compare and diagnose calibrated first, every run was refused, and the line named the data table:
+    "...progression_synthetic.csv: model 'm' could not be run at any of the 89 parameter points its calibration
+    tried: params: spring_N_m must be a positive number, got 0.0"."""
+    data = _progression_table(tmp_path, capsys)
+    model = tmp_path / "m.yaml"
+    model.write_text(PROGRESSION.format(effects="", params=FREE_PF + f"\n  {param}: {value}"))
+    for args in (["compare", "--data", data, "--out", tmp_path / "cmp"],
+                 ["diagnose", "--data", data, "--out", tmp_path / "dg"],
+                 ["synth", "--design", tmp_path / "design.csv", "--noise-sd", "0.5", "--out", tmp_path / "s.csv"]):
+        code, err = run(capsys, *args, "--model", model)
+        assert code == 2, err
+        assert err.strip() == f"capsule-cli: error: {model}: params: {said}"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["base_synthetic.csv", "base_synthetic.csv.provenance.json",
+                                                          "design.csv", "m.yaml", "truth.yaml"]  # nothing written
+
+
 def test_diagnose_leaves_out_a_candidate_it_cannot_run_and_says_why(tmp_path, capsys, clean_registry):
     """The same plugin force as a candidate of diagnose: not tried, with the reason, in diagnosis.json and the
     report; the verdict comes from the candidates that ran (nothing is missing from these base-model data)."""

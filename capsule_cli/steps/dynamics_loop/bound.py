@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from ...dynamics import system as dsys
-from ...dynamics.model import EngineOptions, STEADY_SETTLE_TOL
+from ...dynamics.model import MODEL_PARAM_NAMES, CapsuleModel, EngineOptions, STEADY_SETTLE_TOL
 from ...effects.model import FreeParams, Model
 from ...errors import InputError
 from ...interrupts import deferred_signals
@@ -208,6 +208,25 @@ class ModelNotRunnable(InputError):
     """The engine could not run a model at any parameter point its calibration tried (a plugin force or drive
     transform that fails everywhere, a parameter set out of the engine's reach): bad input, exit code 2; a
     candidate effect of diagnose that cannot be run is left out with the reason."""
+
+
+def check_start_values(model: Model) -> None:
+    """Raise InputError naming the model file when its parameter values (the free ones at their start) cannot make
+    a capsule: a mass, spring stiffness or gap of 0 or less, a negative damping or stiffness, P_f <= 0.
+
+    Checked before any work by `compare`, `diagnose` and `synth`. Before, a fixed ``spring_N_m: 0`` reached the
+    calibration, whose every run was refused, and the one line named the data table: "model 'm' could not be run
+    at any of the 89 parameter points its calibration tried: params: spring_N_m must be a positive number".
+    Plugin effects are not run here (their own checks say what fails, with the plugin's name).
+    """
+    values = {s.param.name: s.value for s in model.specs}
+    where = f"{model.path}: params"  # SI names in the message (mass_capsule_kg for mass_capsule_g)
+    full = dsys.resolve_params(model.base.name, values, model.effect_names, where + ": ")
+    if not full["Pf_N"] > 0:
+        raise InputError(f"{where}: Pf_N must be > 0 N (inf: shell fixed), got {full['Pf_N']}")
+    double = model.base.name == "double_sided" or "secondary_constraint" in model.effect_names
+    CapsuleModel.from_params({k: v for k, v in full.items() if k in MODEL_PARAM_NAMES}, double_sided=double,
+                             where=where)
 
 
 class DynBound(FreeParams):

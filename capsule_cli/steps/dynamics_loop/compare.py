@@ -14,7 +14,8 @@ from ...effects.model import Model
 from ...tables import is_synthetic, provenance, staged_folder, write_json_atomic, write_table
 from .. import crossval
 from ..verdict import Noise
-from .bound import Budget, DynBound, MULTISTABLE_SPREAD_FRACTION, UNIT, choose_modes, predictable, row_variance
+from .bound import (Budget, DynBound, MULTISTABLE_SPREAD_FRACTION, UNIT, check_start_values, choose_modes, predictable,
+                    row_variance)
 from .calibration import DynEvaluation, calibrate
 from .noise import detrended_by_run, noise_of, noise_rho, public_record, serial_noise, trajectory_noise
 from .evaluation import (bootstrap_intervals, evaluate, held_out_record, knife_edge_records, refit_progression,
@@ -26,6 +27,7 @@ from .verdicts import dynamics_covariates
 
 
 def _setup(model: Model, df: pd.DataFrame, data_path: str, k_folds: int, seed: int, budget: Budget):
+    check_start_values(model)
     bound = DynBound(model, df, where=str(data_path), rk_rtol=budget.rk_rtol)
     noise = noise_of(bound)
     sigma = float(noise["sd"]) if noise["sd"] and np.isfinite(noise["sd"]) and noise["sd"] > 0 else 1.0

@@ -12,7 +12,7 @@ from ...dynamics import system as dsys
 from ...effects.model import Model
 from ...errors import InputError
 from ...tables import write_measurements
-from .bound import DynBound
+from .bound import DynBound, check_start_values
 
 
 # ---------------------------------------------------------------------------
@@ -32,6 +32,7 @@ def synthesize_progression(model: Model, design: pd.DataFrame, noise_sd: float, 
     """
     if replicates < 1:
         raise InputError(f"--replicates must be >= 1, got {replicates}")
+    check_start_values(model)
     bound = DynBound(model, design.assign(velocity_mm_s=0.0), where="design")
     rng = np.random.default_rng(seed)
     base_p = bound.protocol
@@ -64,6 +65,7 @@ def synthesize_trajectory(model: Model, design: pd.DataFrame, noise_sd: float, f
     for c in ("run", "f_Hz", "Pd_N", "duration_s"):
         if c not in design.columns:
             raise InputError(f"design: missing column '{c}' (a trajectory design has run, f_Hz, Pd_N, duration_s)")
+    check_start_values(model)
     rng = np.random.default_rng(seed)
     vals = {s.key: s.value for s in model.specs}
     sysm = dsys.build_system(model.base.name, {s.param.name: vals[s.key] for s in model.specs}, model.effect_names)
