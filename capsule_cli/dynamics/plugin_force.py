@@ -48,7 +48,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import InputError
-from ..interrupts import deferred_call
+from ..interrupts import call_interruptibly, deferred_call
 from . import engine as E
 
 #: the Python signature of a plugin force (documentation; see the module doc)
@@ -205,8 +205,8 @@ def compile_forces(forces: Sequence[tuple], where: str = "") -> CompiledForce:
     for jf, n in zip(jitted[1:], nps[1:]):
         total = _sum(total, _one(jf), n_acc)
         n_acc += n
-    try:
-        cf = _cfunc(total, sum(nps))
+    try:  # compiled in a worker thread: in the main thread llvmlite's callbacks can drop a Ctrl-C
+        cf = call_interruptibly(_cfunc, total, sum(nps))
     except Exception as exc:  # noqa: BLE001
         names = ", ".join(e.name for e in effs)
         raise InputError(f"{where}plugin forces ({names}) do not compile together: {_first_line(exc)}") from None
