@@ -60,8 +60,8 @@ class _Deferral:
         return False
 
 
-def deferred_signals(signals=(signal.SIGINT, signal.SIGTERM)) -> _Deferral:
-    """Hold SIGINT / SIGTERM while the block runs, then deliver them to the previous handlers.
+def deferred_signals(signals=(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)) -> _Deferral:
+    """Hold SIGINT / SIGTERM / SIGHUP while the block runs, then deliver them to the previous handlers.
 
     The signal is kept in a flag and raised again after the block, so the process-level handlers
     (KeyboardInterrupt, exit 130 / 143) act cleanly, at the block's end at most: keep blocks short

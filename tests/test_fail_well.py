@@ -16,7 +16,7 @@ import pytest
 from capsule_cli.cli import main
 from capsule_cli.effects import registry
 from capsule_cli.cli import _wrapped_interrupt
-from capsule_cli.cli.common import Terminated
+from capsule_cli.cli.common import HungUp, Terminated
 from capsule_cli.interrupts import call_interruptibly, deferred_signals
 from capsule_cli.tables import atomic_path, remove_stale_stages, staged_folder, write_text_atomic
 from conftest import cli_command, run_cli
@@ -393,7 +393,7 @@ def test_signals_held_in_a_block_are_delivered_at_its_end():
 def test_an_interrupt_wrapped_by_a_c_extension_is_still_an_interrupt():
     """numba's dispatcher turns a handler that ran while it returned into "returned a result with an
     exception set", a SystemError caused by the KeyboardInterrupt: exit 130, not an internal error."""
-    for cause, code in ((KeyboardInterrupt(), 130), (Terminated(), 143), (ValueError("bug"), 0)):
+    for cause, code in ((KeyboardInterrupt(), 130), (Terminated(), 143), (HungUp(), 129), (ValueError("bug"), 0)):
         try:
             try:
                 raise cause
@@ -485,7 +485,7 @@ def test_ctrl_c_stops_a_dynamics_diagnose_while_the_engine_compiles(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["numba_cache", "speeds.csv"]
 
 
-@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143), (signal.SIGHUP, 129)])
 def test_a_signal_stops_a_long_simulate_at_once(tmp_path, sig, code):
     """`simulate` is one compiled call. With the signals held for the call, Ctrl-C ended it with 130 only when the
     run ended: 19.1 s after the signal for 3 million periods (measured on 4b4172d, SIGINT at 5 s). The call now runs
@@ -496,8 +496,26 @@ def test_a_signal_stops_a_long_simulate_at_once(tmp_path, sig, code):
                                         "-q"], 8.0, sig, tmp_path)
     assert rc == code, err
     assert stop_s < 3.0, f"took {stop_s:.1f} s to stop"  # generous for a loaded machine
-    assert len(err.strip().splitlines()) == 1 and ("interrupted" in err or "terminated" in err)
+    assert err.strip() == "capsule-cli: " + {130: "interrupted", 143: "terminated", 129: "hung up"}[code]
     assert list(tmp_path.iterdir()) == []  # no output folder, no stage left
+
+
+def test_a_hang_up_under_nohup_leaves_the_command_running(tmp_path):
+    """SIGHUP (a closed terminal) ends a command with 129 and removes its temporary files, unless the command was
+    started with SIGHUP ignored (``nohup``): then it runs on, as nohup promises."""
+    import signal as sg
+
+    argv, env = cli_command("simulate", "--out", tmp_path / "run", "--periods", "6000000", "--sample-rate-Hz", "0",
+                            "-q")
+    proc = subprocess.Popen(argv, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path,
+                            preexec_fn=lambda: sg.signal(sg.SIGHUP, sg.SIG_IGN))
+    time.sleep(6.0)
+    proc.send_signal(sg.SIGHUP)
+    time.sleep(1.0)
+    assert proc.poll() is None, proc.stderr.read()  # ignored, still running
+    proc.send_signal(sg.SIGINT)
+    assert proc.wait(timeout=30) == 130
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_an_interruptible_engine_run_is_the_same_run():

@@ -111,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     Usage errors are reported by typer with exit code 2; :class:`InputError`
     from a command, and an OSError on a path the user gave (permissions, a
     read-only or full disk), become one line on stderr and exit code 2; Ctrl-C
-    (SIGINT) is exit code 130 and SIGTERM 143, both raised as exceptions so
+    (SIGINT) is exit code 130, SIGTERM 143 and SIGHUP 129, all raised as exceptions so
     that atomic writes remove their temporary files; anything else is a bug:
     exit code 1, traceback only with ``--debug``.
 
@@ -150,7 +150,7 @@ def _exit_without_collecting(code: int) -> None:
 def _run(command, args: list[str], debug: bool) -> int:
     """Run the click command and map every outcome to an exit code."""
     from ..validation import oserror_message
-    from .common import Terminated
+    from .common import HungUp, Terminated
 
     try:
         command.main(args=args, prog_name="capsule-cli", standalone_mode=True)
@@ -166,13 +166,16 @@ def _run(command, args: list[str], debug: bool) -> int:
     except KeyboardInterrupt:
         typer.echo("capsule-cli: interrupted", err=True)
         return 130
+    except HungUp:
+        typer.echo("capsule-cli: hung up", err=True)
+        return 129
     except Terminated:
         typer.echo("capsule-cli: terminated", err=True)
         return 143
     except Exception as exc:  # a bug, unless an OSError on a user's path or an interrupt a C extension wrapped
         signal_code = _wrapped_interrupt(exc)
         if signal_code:
-            typer.echo("capsule-cli: " + ("interrupted" if signal_code == 130 else "terminated"), err=True)
+            typer.echo("capsule-cli: " + {130: "interrupted", 129: "hung up"}.get(signal_code, "terminated"), err=True)
             return signal_code
         msg = oserror_message(exc) if isinstance(exc, OSError) else None
         if msg is not None and not debug:
@@ -187,12 +190,12 @@ def _run(command, args: list[str], debug: bool) -> int:
 
 
 def _wrapped_interrupt(exc: BaseException) -> int:
-    """Return 130 (Ctrl-C) or 143 (SIGTERM) when ``exc`` was caused by the signal's exception, else 0.
+    """Return 130 (Ctrl-C), 143 (SIGTERM) or 129 (SIGHUP) when ``exc`` was caused by the signal's exception, else 0.
 
     A handler that runs while compiled code returns its result surfaces as "returned a result with an
     exception set", a SystemError whose cause is the KeyboardInterrupt (the engine's calls hold the signals,
     :func:`capsule_cli.interrupts.deferred_signals`; this is the net for any other extension)."""
-    from .common import Terminated
+    from .common import HungUp, Terminated
 
     seen = set()
     e = exc.__cause__ or exc.__context__
@@ -200,6 +203,8 @@ def _wrapped_interrupt(exc: BaseException) -> int:
         seen.add(id(e))
         if isinstance(e, KeyboardInterrupt):
             return 130
+        if isinstance(e, HungUp):
+            return 129
         if isinstance(e, Terminated):
             return 143
         e = e.__cause__ or e.__context__

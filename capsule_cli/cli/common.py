@@ -29,14 +29,24 @@ class Terminated(BaseException):
     """Raised by the SIGTERM handler; a BaseException so that ``except Exception`` does not swallow it."""
 
 
+class HungUp(Terminated):
+    """Raised by the SIGHUP handler (the terminal closed, an ssh connection dropped): exit 129, cleaned up."""
+
+
 def _raise_terminated(signum, frame):  # noqa: ARG001
     raise Terminated()
 
 
-def install_signal_handlers() -> dict:
-    """Make SIGINT raise KeyboardInterrupt and SIGTERM raise :class:`Terminated`; return the old handlers.
+def _raise_hung_up(signum, frame):  # noqa: ARG001
+    raise HungUp()
 
-    Raising (instead of dying) lets every ``atomic_path`` remove its temporary file.
+
+def install_signal_handlers() -> dict:
+    """Make SIGINT raise KeyboardInterrupt, SIGTERM :class:`Terminated` and SIGHUP :class:`HungUp`; return the old
+    handlers.
+
+    Raising (instead of dying) lets every ``atomic_path`` and ``staged_folder`` remove its temporary files. SIGHUP
+    is taken only where it would kill the command (its default action): under ``nohup`` it stays ignored.
     Only possible in the main thread; elsewhere nothing is changed.
     """
     import signal
@@ -47,6 +57,9 @@ def install_signal_handlers() -> dict:
     old = {signal.SIGINT: signal.getsignal(signal.SIGINT), signal.SIGTERM: signal.getsignal(signal.SIGTERM)}
     signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.signal(signal.SIGTERM, _raise_terminated)
+    if signal.getsignal(signal.SIGHUP) == signal.SIG_DFL:
+        old[signal.SIGHUP] = signal.SIG_DFL
+        signal.signal(signal.SIGHUP, _raise_hung_up)
     return old
 
 
