@@ -465,8 +465,8 @@ def test_ctrl_c_stops_a_dynamics_diagnose_at_once(tmp_path):
 
 
 def test_ctrl_c_stops_a_dynamics_diagnose_while_the_engine_compiles(tmp_path):
-    """A first run compiles the engine (a cold numba cache: here an empty NUMBA_CACHE_DIR). SIGINT 8 s after the
-    start, while run_many compiled, was lost: on 4b4172d diagnose still ran 30 s later (the deferral around the call
+    """A first run compiles the engine (a cold numba cache: here an empty NUMBA_CACHE_DIR; the test signals at 6 s).
+    SIGINT 8 s after the start, while run_many compiled, was lost: on 4b4172d diagnose still ran 30 s later (the deferral around the call
     held the signal through the compilation). Compiled before the deferral but in the main thread, the handler's
     KeyboardInterrupt was raised inside an llvmlite ctypes callback, which drops it ("Exception ignored"), and
     diagnose ran on. Compiled in a worker thread: exit 130 in 0.06-0.11 s (measured)."""
@@ -477,7 +477,7 @@ def test_ctrl_c_stops_a_dynamics_diagnose_while_the_engine_compiles(tmp_path):
     cache = tmp_path / "numba_cache"
     cache.mkdir()
     rc, stop_s, err = signal_cli_after(["diagnose", "--model", REPO / "configs" / "models" / "progression_base.yaml",
-                                        "--data", data, "--out", tmp_path / "diag", "-q"], 8.0, signal.SIGINT,
+                                        "--data", data, "--out", tmp_path / "diag", "-q"], 6.0, signal.SIGINT,
                                        tmp_path, {"NUMBA_CACHE_DIR": str(cache)})
     assert rc == 130, err
     assert stop_s < 5.0, f"took {stop_s:.1f} s to stop"  # generous: the machine may be loaded
@@ -491,9 +491,10 @@ def test_a_signal_stops_a_long_simulate_at_once(tmp_path, sig, code):
     run ended: 19.1 s after the signal for 3 million periods (measured on 4b4172d, SIGINT at 5 s). The call now runs
     in a worker thread and the command stops at once (measured 0.055 s)."""
     out = tmp_path / "run"
-    # 6 million periods: about 40 s of engine time here; at 8 s imports and the engine's cache load are done
+    # 6 million periods: about 40 s of engine time here; at 4 s the imports (about 1.5 s) are done and the handlers
+    # set, and the engine is loading, compiling (in a worker thread as well) or running
     rc, stop_s, err = signal_cli_after(["simulate", "--out", out, "--periods", "6000000", "--sample-rate-Hz", "0",
-                                        "-q"], 8.0, sig, tmp_path)
+                                        "-q"], 4.0, sig, tmp_path)
     assert rc == code, err
     assert stop_s < 3.0, f"took {stop_s:.1f} s to stop"  # generous for a loaded machine
     assert err.strip() == "capsule-cli: " + {130: "interrupted", 143: "terminated", 129: "hung up"}[code]
@@ -509,7 +510,7 @@ def test_a_hang_up_under_nohup_leaves_the_command_running(tmp_path):
                             "-q")
     proc = subprocess.Popen(argv, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path,
                             preexec_fn=lambda: sg.signal(sg.SIGHUP, sg.SIG_IGN))
-    time.sleep(6.0)
+    time.sleep(4.0)
     proc.send_signal(sg.SIGHUP)
     time.sleep(1.0)
     assert proc.poll() is None, proc.stderr.read()  # ignored, still running
