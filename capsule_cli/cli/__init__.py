@@ -150,7 +150,7 @@ def _exit_without_collecting(code: int) -> None:
 def _run(command, args: list[str], debug: bool) -> int:
     """Run the click command and map every outcome to an exit code."""
     from ..validation import oserror_message
-    from .common import HungUp, Terminated
+    from .common import Terminated
 
     try:
         command.main(args=args, prog_name="capsule-cli", standalone_mode=True)
@@ -158,24 +158,19 @@ def _run(command, args: list[str], debug: bool) -> int:
     except SystemExit as exc:
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
         if code == 130:  # typer turns Ctrl-C into exit code 130
-            typer.echo("capsule-cli: interrupted", err=True)
+            typer.echo("capsule-cli: " + _SIGNAL_WORDS[130], err=True)
         return code
     except (InputError, PluginError) as exc:
         typer.echo(f"capsule-cli: error: {_one_line(exc)}", err=True)
         return 2
-    except KeyboardInterrupt:
-        typer.echo("capsule-cli: interrupted", err=True)
-        return 130
-    except HungUp:
-        typer.echo("capsule-cli: hung up", err=True)
-        return 129
-    except Terminated:
-        typer.echo("capsule-cli: terminated", err=True)
-        return 143
+    except (KeyboardInterrupt, Terminated) as exc:
+        code = _signal_code(exc)
+        typer.echo("capsule-cli: " + _SIGNAL_WORDS[code], err=True)
+        return code
     except Exception as exc:  # a bug, unless an OSError on a user's path or an interrupt a C extension wrapped
         signal_code = _wrapped_interrupt(exc)
         if signal_code:
-            typer.echo("capsule-cli: " + {130: "interrupted", 129: "hung up"}.get(signal_code, "terminated"), err=True)
+            typer.echo("capsule-cli: " + _SIGNAL_WORDS[signal_code], err=True)
             return signal_code
         msg = oserror_message(exc) if isinstance(exc, OSError) else None
         if msg is not None and not debug:
@@ -195,20 +190,29 @@ def _wrapped_interrupt(exc: BaseException) -> int:
     A handler that runs while compiled code returns its result surfaces as "returned a result with an
     exception set", a SystemError whose cause is the KeyboardInterrupt (the engine's calls hold the signals,
     :func:`capsule_cli.interrupts.deferred_signals`; this is the net for any other extension)."""
-    from .common import HungUp, Terminated
-
     seen = set()
     e = exc.__cause__ or exc.__context__
     while e is not None and id(e) not in seen:
         seen.add(id(e))
-        if isinstance(e, KeyboardInterrupt):
-            return 130
-        if isinstance(e, HungUp):
-            return 129
-        if isinstance(e, Terminated):
-            return 143
+        if _signal_code(e):
+            return _signal_code(e)
         e = e.__cause__ or e.__context__
     return 0
+
+
+#: the one line (after "capsule-cli: ") of each signal's exit code
+_SIGNAL_WORDS = {130: "interrupted", 143: "terminated", 129: "hung up"}
+
+
+def _signal_code(exc: BaseException) -> int:
+    """Return the exit code of the exception a signal raised (SIGINT 130, SIGHUP 129, SIGTERM 143), else 0."""
+    from .common import HungUp, Terminated
+
+    if isinstance(exc, KeyboardInterrupt):
+        return 130
+    if isinstance(exc, HungUp):
+        return 129
+    return 143 if isinstance(exc, Terminated) else 0
 
 
 def _one_line(exc: Exception) -> str:

@@ -162,6 +162,19 @@ def plugin_roles(effects: Sequence[str], full: Mapping[str, float], where: str =
     return tuple(transforms), tuple(forces)
 
 
+def capsule_of(base: str, params: Mapping[str, float], effects: Sequence[str], where: str = ""):
+    """Return (every parameter but P_f by model-file name, P_f [N], the checked :class:`CapsuleModel`) of ``base``
+    with ``effects`` at ``params``; InputError (prefixed with ``where``, ending in ": ") when they make no capsule.
+    The plugin effects are not compiled or run here (:func:`build_system` does that)."""
+    full = resolve_params(base, params, effects, where)
+    pf = float(full.pop("Pf_N"))
+    if not pf > 0:
+        raise InputError(f"{where}Pf_N must be > 0 N (inf: shell fixed), got {pf}")
+    double = base == "double_sided" or "secondary_constraint" in effects
+    engine_params = {k: v for k, v in full.items() if k in MODEL_PARAM_NAMES}
+    return full, pf, CapsuleModel.from_params(engine_params, double_sided=double, where=where.rstrip(": ") or "params")
+
+
 def build_system(base: str, params: Mapping[str, float], effects: Sequence[str] = (), where: str = "") -> DynSystem:
     """Return the dynamics model of ``base`` ('one_sided' | 'double_sided') with ``effects``.
 
@@ -173,14 +186,8 @@ def build_system(base: str, params: Mapping[str, float], effects: Sequence[str] 
     """
     where = f"{where}: " if where and not where.endswith(": ") else where
     effects = tuple(effects)
-    full = resolve_params(base, params, effects, where)
-    pf = float(full.pop("Pf_N"))
-    if not pf > 0:
-        raise InputError(f"{where}Pf_N must be > 0 N (inf: shell fixed), got {pf}")
+    full, pf, model = capsule_of(base, params, effects, where)
     transforms, forces = plugin_roles(effects, full, where)
-    double = base == "double_sided" or "secondary_constraint" in effects
-    engine_params = {k: v for k, v in full.items() if k in MODEL_PARAM_NAMES}
-    model = CapsuleModel.from_params(engine_params, double_sided=double, where=where.rstrip(": ") or "params")
     if forces:
         model = replace(model, plugin_forces=forces)
     return DynSystem(base=base, effects=effects, params={**full, "Pf_N": pf}, model=model, Pf_N=pf,

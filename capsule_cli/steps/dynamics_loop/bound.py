@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from ...dynamics import system as dsys
-from ...dynamics.model import MODEL_PARAM_NAMES, CapsuleModel, EngineOptions, STEADY_SETTLE_TOL
+from ...dynamics.model import EngineOptions, STEADY_SETTLE_TOL
 from ...effects.model import FreeParams, Model
 from ...errors import InputError
 from ...interrupts import deferred_signals
@@ -219,14 +219,9 @@ def check_start_values(model: Model) -> None:
     at any of the 89 parameter points its calibration tried: params: spring_N_m must be a positive number".
     Plugin effects are not run here (their own checks say what fails, with the plugin's name).
     """
-    values = {s.param.name: s.value for s in model.specs}
-    where = f"{model.path}: params"  # SI names in the message (mass_capsule_kg for mass_capsule_g)
-    full = dsys.resolve_params(model.base.name, values, model.effect_names, where + ": ")
-    if not full["Pf_N"] > 0:
-        raise InputError(f"{where}: Pf_N must be > 0 N (inf: shell fixed), got {full['Pf_N']}")
-    double = model.base.name == "double_sided" or "secondary_constraint" in model.effect_names
-    CapsuleModel.from_params({k: v for k, v in full.items() if k in MODEL_PARAM_NAMES}, double_sided=double,
-                             where=where)
+    # SI names in the message (mass_capsule_kg for mass_capsule_g)
+    dsys.capsule_of(model.base.name, {s.param.name: s.value for s in model.specs}, tuple(model.effect_names),
+                    f"{model.path}: params: ")
 
 
 class DynBound(FreeParams):
