@@ -206,10 +206,12 @@ def test_a_dynamics_model_the_engine_cannot_run_anywhere_is_exit_2_not_a_fit(tmp
 
 @pytest.mark.parametrize("param, value, said", [
     ("spring_N_m", "0", "spring_N_m must be a positive number, got 0.0"),
-    ("mass_capsule_g", "-1", "mass_capsule_kg must be a positive number, got -0.001"),
+    ("mass_capsule_g", "-1", "mass_capsule_g must be a positive number, got -1.0"),
+    ("gap_mm", "-0.5", "gap_mm must be a positive number, got -0.5"),
     ("constraint_N_m", "-5", "constraint_N_m must be a non-negative number, got -5.0")])
 def test_a_model_file_value_no_capsule_has_is_exit_2_naming_the_model_file(tmp_path, capsys, param, value, said):
-    """A fixed value that makes no capsule (a spring of 0 N/m) is the model file's error, said before any work.
+    """A fixed value that makes no capsule (a spring of 0 N/m) is the model file's error, said before any work,
+    under the name and in the unit the file uses (mass_capsule_g -1, not the engine's mass_capsule_kg -0.001).
     Before, compare and diagnose calibrated first, every run was refused, and the line named the data table:
     "...progression_synthetic.csv: model 'm' could not be run at any of the 89 parameter points its calibration
     tried: params: spring_N_m must be a positive number, got 0.0"."""

@@ -8,6 +8,7 @@ published numbers with their citations.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -37,6 +38,8 @@ MODEL_PARAM_NAMES = {
     "compliance_mm_N": "compliance_m_N",
     "substrate_damping_Ns_m": "substrate_damping_Ns_m",
 }
+#: the model-file name of each :class:`CapsuleModel` field (the messages name what the user wrote)
+FILE_PARAM_NAMES = {field: name for name, field in MODEL_PARAM_NAMES.items()}
 
 
 @dataclass(frozen=True)
@@ -84,23 +87,35 @@ class CapsuleModel:
         with k_b = c_b = 0 it is absent, so the model is the one-sided one exactly."""
         return self.double_sided and (self.constraint_back_N_m > 0 or self.constraint_back_damping_Ns_m > 0)
 
-    def validate(self, where: str = "model") -> "CapsuleModel":
+    def validate(self, where: str = "model", given: Mapping[str, float] | None = None) -> "CapsuleModel":
+        """Return self when every field makes a capsule, else raise InputError (one line, prefixed ``where``).
+
+        given: the values as the user wrote them, by model-file name (``mass_capsule_g: -1``); a bad field found
+        there is named and shown as written (``mass_capsule_g must be a positive number, got -1.0``), not in SI.
+        """
+        def bad(field: str, what: str) -> InputError:
+            name, shown = field, getattr(self, field)
+            file_name = FILE_PARAM_NAMES.get(field)
+            if given is not None and file_name in given:
+                name, shown = file_name, float(given[file_name])
+            return InputError(f"{where}: {name} must be {what}, got {shown}")
+
         for name in ("mass_magnet_kg", "mass_capsule_kg", "spring_N_m", "gap_m"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
-                raise InputError(f"{where}: {name} must be a positive number, got {v}")
+                raise bad(name, "a positive number")
         for name in ("damping_Ns_m", "constraint_N_m", "constraint_damping_Ns_m", "constraint_back_N_m",
                      "constraint_back_damping_Ns_m", "gap_back_m", "speed_a_N", "drag_Ns_m",
                      "compliance_m_N", "substrate_damping_Ns_m"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
-                raise InputError(f"{where}: {name} must be a non-negative number, got {v}")
+                raise bad(name, "a non-negative number")
         if not (math.isfinite(self.speed_n) and self.speed_n > 0):
-            raise InputError(f"{where}: the speed-law exponent n must be a positive number, got {self.speed_n}")
+            raise bad("speed_n", "a positive number (the speed-law exponent)")
         if not math.isfinite(self.tilt_kappa):
-            raise InputError(f"{where}: kappa must be a finite number, got {self.tilt_kappa}")
+            raise bad("tilt_kappa", "a finite number")
         if self.double_sided and not self.gap_back_m > 0:
-            raise InputError(f"{where}: gap_back_m must be > 0 for the double-sided model")
+            raise bad("gap_back_m", "> 0 for the double-sided model")
         return self
 
     @classmethod
@@ -118,13 +133,13 @@ class CapsuleModel:
         if double_sided is None:
             double_sided = "constraint_back_N_m" in params
         kw["double_sided"] = bool(double_sided)
-        return cls(**kw).validate(where)
+        return cls(**kw).validate(where, given=params)
 
     def with_param(self, name: str, value: float) -> "CapsuleModel":
         """Return a copy with one model-file parameter (unit from its suffix) changed."""
         if name not in MODEL_PARAM_NAMES:
             raise InputError(f"unknown model parameter '{name}' (known: {', '.join(sorted(MODEL_PARAM_NAMES))})")
-        return replace(self, **{MODEL_PARAM_NAMES[name]: float(to_si(value, name))}).validate()
+        return replace(self, **{MODEL_PARAM_NAMES[name]: float(to_si(value, name))}).validate(given={name: value})
 
 
 #: parameter set behind each dynamics base model of a model file (contract section 4)
