@@ -2050,3 +2050,22 @@ def test_the_polish_weighs_the_chaotic_conditions_at_the_polished_conditions_noi
     assert u[0] == 0.2 and w is None
     u, c, w = _predictable_polish_from(0.25, lambda th: 0.0, s=1.5)
     assert u[0] == 0.25 and w is None
+
+
+def test_two_conditions_say_the_data_cannot_tell_and_claim_no_fit_within_the_noise(tmp_path):
+    """Two measured conditions without replicates cannot estimate the noise (the data's spread only bounds it):
+    the verdict is "the data cannot tell", and the words on where the model fails do not say it is "within about
+    2 noise SDs" of the data (they said so before), which the data cannot show: only that no regime is off by
+    more than 2 times the noise's upper bound."""
+    truth = _model(tmp_path, "truth_two", params={"Pf_N": 0.03})
+    df, path = _progression_data(tmp_path, truth, TEN_DESIGN.iloc[:2], seed=0, replicates=1)
+    base = _model(tmp_path, "base", params={"Pf_N": FREE_PF})
+    r = DL.run_diagnose(base, df, path, tmp_path / "diag", k_folds=3, seed=0, figures=False, budget=QUICK,
+                        candidates=CANDIDATES)
+    v = r["verdict"]
+    assert v["outcome"] == "cannot_tell", v["message"]
+    assert "with 2 points and no replicates" in v["message"] and r["noise"]["reliable"] is False
+    bound = float(r["where_it_fails"].split("upper bound (")[1].split(" mm/s)")[0])
+    assert bound == pytest.approx(r["noise"]["sd"], rel=1e-3)
+    assert r["where_it_fails"].startswith("no response regime is off by more than 2 times the noise's upper bound (")
+    assert "within about 2 noise SDs" not in v["message"]

@@ -187,6 +187,52 @@ def _progression_table(tmp_path: Path, capsys) -> Path:
     return tmp_path / "base_synthetic.csv"
 
 
+def test_a_table_of_one_condition_run_or_reading_group_is_exit_2_before_any_fit(tmp_path, capsys):
+    """The held-out error leaves each condition (run, group of replicate readings) out in turn and predicts it
+    from the others: with one there is nothing to fit on. Before, a one-reading friction table was an internal
+    error (exit 1, ZeroDivisionError), and a one-condition progression or one-run trajectory table got a
+    "held-out" RMSE that was the refit-on-nothing's error (a one-run trajectory: cv_rmse 1.7e-7 mm)."""
+    friction = tmp_path / "one_friction.csv"
+    pd.DataFrame({"speed_mm_s": [4.0, 4.0], "friction_mN": [20.0, 20.4]}).to_csv(friction, index=False)
+    prog = tmp_path / "one_progression.csv"
+    pd.DataFrame({"f_Hz": [34.0, 34.0], "Pd_N": [0.1, 0.1], "velocity_mm_s": [1.0, 1.3]}).to_csv(prog, index=False)
+    traj = tmp_path / "one_trajectory.csv"
+    t = np.arange(50) / 100.0
+    pd.DataFrame({"run": "a", "time_s": t, "capsule_mm": 0.01 * t, "f_Hz": 30.0, "Pd_N": 0.15}).to_csv(traj,
+                                                                                                  index=False)
+    (tmp_path / "m.yaml").write_text(PROGRESSION.format(effects="", params=FREE_PF))
+    (tmp_path / "t.yaml").write_text(PROGRESSION.format(effects="", params=FREE_PF).replace("kind: progression",
+                                                                                            "kind: trajectory"))
+    cases = [(Path(__file__).resolve().parents[1] / "configs" / "models" / "coulomb.yaml", friction,
+              "the held-out error needs at least 2 groups of readings, each left out in turn and predicted from the "
+              "others; the table has 1 (by identical covariate values)"),
+             (tmp_path / "m.yaml", prog, "the held-out error needs at least 2 conditions (drives), each left out in "
+              "turn and predicted from the others; the table has 1"),
+             (tmp_path / "t.yaml", traj, "the held-out error needs at least 2 runs, each left out in turn and "
+              "predicted from the others; the table has 1")]
+    for model, data, said in cases:
+        for cmd in ("compare", "diagnose"):
+            out = tmp_path / f"{data.stem}_{cmd}"
+            code, err = run(capsys, cmd, "--model", model, "--data", data, "--out", out)
+            assert code == 2 and err.strip() == f"capsule-cli: error: {data}: {said}", err
+            assert not out.exists()
+
+
+@pytest.mark.parametrize("cmd, option, value", [("compare", "--folds", "1"), ("diagnose", "--folds", "0"),
+                                                 ("compare", "--seed", "-1"), ("synth", "--seed", "-2")])
+def test_folds_below_two_and_negative_seeds_are_usage_errors(tmp_path, capsys, cmd, option, value):
+    """Before, --folds 0, 1 or -3 was quietly taken as 2, and a negative --seed was an internal error (exit 1,
+    numpy's "expected non-negative integer") after the table had been read and the model fitted."""
+    data = friction_csv(tmp_path / "f.csv")
+    model = Path(__file__).resolve().parents[1] / "configs" / "models" / "coulomb.yaml"
+    io = ["--design", data, "--noise-sd", "1", "--out", tmp_path / "s_synthetic.csv"] if cmd == "synth" else \
+        ["--data", data, "--out", tmp_path / "out"]
+    code = main([cmd, "--model", str(model), *map(str, io), option, value])
+    err = capsys.readouterr().err
+    assert code == 2 and f"Invalid value for '{option}'" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f.csv"]
+
+
 def test_a_dynamics_model_the_engine_cannot_run_anywhere_is_exit_2_not_a_fit(tmp_path, capsys, clean_registry):
     """A plugin force that fails at every parameter point (here at rest, whatever its parameter) is bad input:
     one line naming the plugin, its error and where, and no fit written. Before, compare wrote the penalty as

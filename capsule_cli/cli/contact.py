@@ -244,7 +244,7 @@ def register(app: typer.Typer) -> None:
         Ri_mm: float = typer.Option(None, "--Ri-mm", help="Compute the factor for this intestine radius (mm) "
                                                           "from --params (attenuated wall)."),
         params: str = typer.Option("capsule_intestine", "--params", help="Parameter set for --Ri-mm."),
-        seed: int = typer.Option(0, "--seed", help="Random seed of the multi-start fits."),
+        seed: int = typer.Option(0, "--seed", min=0, help="Random seed of the multi-start fits."),
         out: Path = out_option(help="Output folder: fit.json, curve.parquet, residuals.parquet, relax_fit.png."),
         quiet: bool = QUIET,
     ):

@@ -56,7 +56,7 @@ def fit_cmd(
     case: Optional[str] = typer.Option(None, "--case", help="Use only the rows of this case (column 'case')."),
     groups: Optional[str] = typer.Option(None, "--groups", help="Label column (e.g. trial) to summarise "
                                          "residuals per group."),
-    seed: int = typer.Option(0, "--seed", help="Seed of the multi-start draws."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Seed of the multi-start draws."),
     n_starts: int = typer.Option(6, "--n-starts", min=1, help="Starting points of the least-squares fit."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder: fit.json, band.parquet, "
                              "residuals.parquet, fit.png (written atomically)."),

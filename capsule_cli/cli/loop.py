@@ -11,10 +11,10 @@ from ..errors import InputError
 from .common import QUIET, check_outputs
 
 PLUGINS = typer.Option(None, "--plugins", help="Python file(s) registering extra effects (repeat the option).")
-SEED = typer.Option(0, "--seed", help="Random seed (fold assignment, multi-start, noise).")
+SEED = typer.Option(0, "--seed", min=0, help="Random seed (fold assignment, multi-start, noise).")
 EFFORT = typer.Option("full", "--effort", help="Dynamics kinds (progression, trajectory): calibration budget, "
                       "'full' or 'quick' (fewer starts, evaluations and bootstrap resamples: a first look, smoke runs).")
-FOLDS = typer.Option(5, "--folds", help="Number of cross-validation folds (groups: trial/run, else identical covariates; progression: conditions).")
+FOLDS = typer.Option(5, "--folds", min=2, help="Number of cross-validation folds (groups: trial/run, else identical covariates; progression: conditions).")
 
 
 def _load(model_path: Path, plugins: Optional[List[Path]]):

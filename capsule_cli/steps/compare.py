@@ -279,6 +279,7 @@ def run_compare(model: Model, df: pd.DataFrame, kind: str, data_path: str, out_d
     check_model_output(bound, None, "start values")  # NaN from the model: exit 2 naming the effect
     resp = bound.response
     groups, how = crossval.cv_groups(df, resp)
+    crossval.require_groups(groups, how, str(data_path))
     folds = crossval.assign_folds(groups, k_folds, seed)
     ev = evaluate(bound, folds, groups, seed=seed)
     check_model_output(bound, ev.theta, "solution")

@@ -15,6 +15,7 @@ import math
 import numpy as np
 import pandas as pd
 
+from ..errors import InputError
 from .residual_tests import GROUP_LABELS, replicate_groups
 
 
@@ -24,6 +25,19 @@ def cv_groups(df: pd.DataFrame, response: str) -> tuple[np.ndarray, str]:
         if lab in df.columns and df[lab].nunique() >= 2:
             return df.groupby(lab, sort=False).ngroup().to_numpy(), f"by '{lab}'"
     return replicate_groups(df, response), "by identical covariate values"
+
+
+def require_groups(groups: np.ndarray, how: str, where: str, nouns: str = "groups of readings") -> None:
+    """Raise InputError (one line, prefixed ``where``) unless ``groups`` holds at least 2 groups.
+
+    Cross-validation leaves each group out in turn and predicts it from the others; with one group there is
+    nothing left to fit on, and an error computed there would be the start values' error, not a prediction.
+    nouns: what a group is, in the plural ('conditions', 'runs'); how: how the groups were formed ('' to leave
+    it unsaid)."""
+    n = int(np.unique(groups).size)
+    if n < 2:
+        raise InputError(f"{where}: the held-out error needs at least 2 {nouns}, each left out in turn and predicted "
+                         f"from the others; the table has {n}" + (f" ({how})" if how else ""))
 
 
 def assign_folds(groups: np.ndarray, k: int, seed: int) -> np.ndarray:

@@ -301,6 +301,7 @@ def diagnose_table(model: Model, df: pd.DataFrame, kind: str, where: str = "", k
     df_all = df
     bound = model.bind(df, where=str(where))
     check_model_output(bound, None, "start values")  # validation layer: NaN names the effect (exit 2)
+    crossval.require_groups(*crossval.cv_groups(df, resp), str(where))
     # the noise (and outliers) from the differences of the residuals of the model fitted to all rows
     theta_all, _ = calibrate(bound, bound.observed(), seed=seed)
     noise = noise_estimate(df, resp, fitted=bound.predict(theta_all))

@@ -912,7 +912,7 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
         msg = f"nothing is missing: held-out RMSE {_g(cv_base)} {unit} {how}{corr_txt}"
         return Verdict("nothing_missing", None, None, None, msg, tests=tests)
     closest, more, where = None, None, None
-    if tests:
+    if any(np.isfinite(t.p_value) for t in tests):  # no test to run (no residual degrees of freedom): none closest
         i = int(np.nanargmin([t.p_value if np.isfinite(t.p_value) else np.inf for t in tests]))
         ct, cc = tests[i], candidates[i]
         closest = ct.name
@@ -921,7 +921,7 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
         where = where_to_measure(cc.pred - base.pred, covariates, list(cc.covariates) or list(covariates))
     why = (f"held-out RMSE {_g(cv_base)} {unit} exceeds {linear_txt}"
            + (f", and a correct model is not held out as far on these runs ({design_txt})" if design_txt else "")
-           if noise.reliable else f"with {n} points and no replicates {noise_txt}")
+           if noise.reliable else f"with {n} point{'s' if n != 1 else ''} and no replicates {noise_txt}")
     msg = f"the data cannot tell: {why}, but no candidate passes the rule"
     if closest:
         msg += f"; closest: {closest} (F test {p_text(tests[i].p_value)})"

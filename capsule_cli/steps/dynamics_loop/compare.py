@@ -29,6 +29,8 @@ from .verdicts import dynamics_covariates
 def _setup(model: Model, df: pd.DataFrame, data_path: str, k_folds: int, seed: int, budget: Budget):
     check_start_values(model)
     bound = DynBound(model, df, where=str(data_path), rk_rtol=budget.rk_rtol)
+    crossval.require_groups(bound.groups()[0], "", str(data_path),
+                            "conditions (drives)" if bound.kind == "progression" else "runs")
     noise = noise_of(bound)
     sigma = float(noise["sd"]) if noise["sd"] and np.isfinite(noise["sd"]) and noise["sd"] > 0 else 1.0
     if bound.kind == "trajectory":
@@ -134,7 +136,7 @@ def run_compare(model: Model, df: pd.DataFrame, data_path: str, out_dir, ledger=
     if bound.kind == "trajectory":
         met["residuals_correlated"] = public_record(corr)
     # in words at the noise the errors are standardised with (the revised estimate, not the first bound)
-    met["where_it_fails"] = plain_summary(ev, ev.sigma, rho)
+    met["where_it_fails"] = plain_summary(ev, ev.sigma, rho, bool(noise.get("reliable", True)))
     gross = compare_outliers(ev, noise0, sigma, k_folds, budget, seed)
     met["outliers"] = gross
     if gross:

@@ -206,12 +206,14 @@ def run_drift_words(per: pd.DataFrame) -> list[str]:
     return parts
 
 
-def plain_summary(ev: DynEvaluation, sigma: float, rho: float = 0.0) -> str:
+def plain_summary(ev: DynEvaluation, sigma: float, rho: float = 0.0, reliable: bool = True) -> str:
     """Return where the model fails by regime and drive condition, in plain words: for a trajectory, first the
     runs where the model's capsule falls behind or runs ahead (:func:`run_drift_words`, noise SD ``sigma``, its
     frame-to-frame correlation ``rho``); else,
     for every response
-    class where most rows are off by more than 2 noise SDs, which way and where."""
+    class where most rows are off by more than 2 noise SDs, which way and where. ``reliable`` False: ``sigma`` is
+    only an upper bound of the noise (too few points, no replicates), so rows within 2 of it are not said to be
+    within the noise."""
     unit = UNIT[ev.bound.kind]
     rf = ev.bound.row_frame()
     z = ev.resid / np.sqrt(row_variance(sigma, ev.sim)) if sigma > 0 else ev.resid
@@ -234,6 +236,9 @@ def plain_summary(ev: DynEvaluation, sigma: float, rho: float = 0.0) -> str:
         where = _drive_span(sub)
         parts.append(f"the model's {what} is {word} than measured (by {abs(mean_r):.3g} {unit} on average) in "
                      f"{int(bad.sum())} of {int(m.sum())} rows where {_CLASS_WORDS[c]} ({where})")
+    if not parts and not reliable:
+        return (f"no response regime is off by more than 2 times the noise's upper bound ({sigma:.3g} {unit}); "
+                f"the data cannot estimate the noise itself, so they cannot show a smaller misfit")
     if not parts:
         return "the model is within about 2 noise SDs of the data in every response regime"
     return "; ".join(parts)
