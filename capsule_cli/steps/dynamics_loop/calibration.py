@@ -343,9 +343,9 @@ def _horizon_starts(bound: "DynBound", y: np.ndarray, sigma: float, rows, x0, bu
     (HORIZON_FIRST_BRANCHES in all, best first) are each refined by the least-squares polish (budget
     evals_per_param per parameter) on the next horizon, where the best HORIZON_BRANCHES are kept and refined
     on each longer horizon in turn (the best at each horizon first). Each result is one more Nelder-Mead start
-    of the calibration on every row, which keeps one only if it fits better there. (Growing the fitted time interval is the usual remedy when a
-    long trajectory makes the misfit a needle in the parameters; multiple shooting answers the same problem:
-    Voss, Timmer & Kurths, Int. J. Bifurc. Chaos 14, 1905-1933, 2004.)"""
+    of the calibration on every row, which keeps one only if it fits better there. (Growing the fitted time
+    interval is the usual remedy when a long trajectory makes the misfit a needle in the parameters; multiple
+    shooting answers the same problem: Voss, Timmer & Kurths, Int. J. Bifurc. Chaos 14, 1905-1933, 2004.)"""
     branches, refine = None, replace(budget, fold_evals_per_param=budget.evals_per_param)
     for periods in HORIZON_PERIODS:
         rh = bound.horizon_rows(rows, periods)
