@@ -241,3 +241,38 @@ def test_intervals_over_four_runs_match_the_linearised_standard_errors(tmp_path,
     for i, s in enumerate(bound.free):
         assert lin[i] / 1.5 < se[s.key] < 1.5 * lin[i], (s.key, se[s.key], lin[i])
         assert ci[s.key][0] < theta[i] < ci[s.key][1]
+
+
+def test_horizon_continuation_ranks_the_first_horizons_minima_on_the_second(monkeypatch):
+    """The first horizon (3 drive periods) can hold several minima that fit its few frames equally well (at 0.3 mm
+    noise a secondary constraint at G_2 = 0.2 mm: the truth 0.292 mm RMS there, the minima found 0.298-0.311, the
+    one near the truth fourth); they are told apart on the second horizon. Here a stand-in calibration whose first
+    horizon ranks six distinct minima in one order and whose second ranks them in another: every one is refined on
+    the second horizon, and the three best there are kept, the best first (before: the first horizon's best three,
+    refined in that order)."""
+    from capsule_cli.steps.dynamics_loop import calibration as CAL
+
+    class Bound:
+        bounds = (np.zeros(2), np.ones(2))
+
+        def horizon_rows(self, rows, periods):
+            return np.arange(int(periods))  # a horizon's rows: as many as its periods
+
+    first = [np.array([0.1 * i + 0.05, 0.5]) for i in range(6)]  # the first horizon's minima, in its order
+    second_cost = {0: 5.0, 1: 4.0, 2: 6.0, 3: 1.0, 4: 3.0, 5: 2.0}  # on the second horizon minimum 3 is best
+    refined = []
+
+    def fake_calibrate(bound, y, sigma, rows=None, x0=None, budget=None, seed=0, **kw):
+        if not kw.get("warm"):  # the first horizon's multi-start calibration: its fit, then the other minima
+            kw["minima"].extend(m.copy() for m in first[1:])
+            return CAL.Fit(first[0].copy(), 0.0, 1, 1)
+        i = int(round((x0[0] - 0.05) / 0.1))
+        refined.append((rows.size, i))
+        return CAL.Fit(np.asarray(x0, float), second_cost[i] if rows.size == 5 else 0.0, 1, 1)
+
+    monkeypatch.setattr(CAL, "calibrate", fake_calibrate)
+    monkeypatch.setattr(CAL, "HORIZON_PERIODS", (3.0, 5.0, 8.0))
+    starts = CAL._horizon_starts(Bound(), np.zeros(10), 0.3, None, first[0], DL.EFFORTS["full"], 0, [], [])
+    assert [r for r in refined if r[0] == 5] == [(5, i) for i in range(6)]  # all six refined on the second
+    assert [r[1] for r in refined if r[0] == 8] == [3, 5, 4]  # the best three there, followed on
+    assert [round((s[0] - 0.05) / 0.1) for s in starts] == [3, 5, 4]
