@@ -222,7 +222,7 @@ def test_a_table_of_one_condition_run_or_reading_group_is_exit_2_before_any_fit(
                                                  ("compare", "--seed", "-1"), ("synth", "--seed", "-2")])
 def test_folds_below_two_and_negative_seeds_are_usage_errors(tmp_path, capsys, cmd, option, value):
     """Before, --folds 0, 1 or -3 was quietly taken as 2, and a negative --seed was an internal error (exit 1,
-    numpy's "expected non-negative integer") after the table had been read and the model fitted."""
+    numpy's "expected non-negative integer" from the fold assignment) after the table had been read."""
     data = friction_csv(tmp_path / "f.csv")
     model = Path(__file__).resolve().parents[1] / "configs" / "models" / "coulomb.yaml"
     io = ["--design", data, "--noise-sd", "1", "--out", tmp_path / "s_synthetic.csv"] if cmd == "synth" else \
