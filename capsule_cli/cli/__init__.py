@@ -194,8 +194,9 @@ def _wrapped_interrupt(exc: BaseException) -> int:
     e = exc.__cause__ or exc.__context__
     while e is not None and id(e) not in seen:
         seen.add(id(e))
-        if _signal_code(e):
-            return _signal_code(e)
+        code = _signal_code(e)
+        if code:
+            return code
         e = e.__cause__ or e.__context__
     return 0
 

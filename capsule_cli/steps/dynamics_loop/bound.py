@@ -219,7 +219,7 @@ def check_start_values(model: Model) -> None:
     at any of the 89 parameter points its calibration tried: params: spring_N_m must be a positive number".
     Plugin effects are not run here (their own checks say what fails, with the plugin's name).
     """
-    # SI names in the message (mass_capsule_kg for mass_capsule_g)
+    # the message names a bad value as the file writes it (mass_capsule_g, not the engine's mass_capsule_kg)
     dsys.capsule_of(model.base.name, {s.param.name: s.value for s in model.specs}, tuple(model.effect_names),
                     f"{model.path}: params: ")
 
