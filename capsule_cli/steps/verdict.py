@@ -871,6 +871,16 @@ def decide_verdict(y: np.ndarray, base: FitSummary, candidates: Sequence[FitSumm
                         f"{dd.as_high(win.cv_rmse)} as high or higher), above the noise "
                         f"({_g(noise.sd)} {unit}): held out one at a time, a run is predicted with parameters the "
                         "other runs do not pin down; more runs (other drives) would pin them down")
+        elif np.isfinite(noise.sd) and noise.sd > 0:
+            # the noise only bounded: a held-out error above what that bound allows is above what the noise
+            # allows, so the numbers still show the error the named effect leaves (a smaller one they cannot)
+            exp_w, se_w, z_w, over = winner_excess(win.sq_err, groups, noise, n, win.n_free, n_folds)
+            if win.cv_rmse > exp_w + z_w * se_w:
+                msg += (f". With it the held-out RMSE ({_g(win.cv_rmse)} {unit}) still exceeds the {_g(exp_w)} "
+                        f"{unit} that even the noise's upper bound allows by more than {_g(z_w)} standard errors "
+                        f"({_g(se_w)}{over}): error the noise cannot explain is left; its form may not match the "
+                        "data, a second effect may be missing, or the data may not follow the model's conventions "
+                        "(units; a trajectory's positions from the capsule's rest position at t = 0)")
         return Verdict("missing_effect", win.name, cov, None, msg, tests=tests, structure_used=left,
                        alternatives=close)
 

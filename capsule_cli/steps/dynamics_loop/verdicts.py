@@ -45,7 +45,12 @@ def dynamics_verdict(base: DynEvaluation, cands: Sequence[dict], noise: dict, si
                                nests=c["effect"].nests))
         c["delta_cv"], c["delta_cv_se"] = crossval.paired_difference(base.cv_sq, ev.cv_sq, base.groups)
         c["delta_bic"] = ev.bic - base.bic
-    nz = Noise(float(sigma), float(noise.get("se") or 0.0), bool(noise.get("reliable", True)),
+    reliable = bool(noise.get("reliable", True))
+    # only bounded: the verdict states the bound the report states (``sigma`` is the scale of the standardised
+    # residuals; a trajectory's difference-based bound is raised for correlated residuals after the fits)
+    bound_sd = float(noise.get("sd") or float("nan"))
+    shown = sigma if reliable or not (np.isfinite(bound_sd) and bound_sd > 0) else bound_sd
+    nz = Noise(float(shown), float(noise.get("se") or 0.0), reliable,
                str(noise.get("method", "")), noise.get("correlated"), str(noise.get("residual_of", "")),
                str(noise.get("residual_because", "no replicates")))
     v = decide_verdict(base.y, summary_of(base), sums, nz, {c: rf[c].to_numpy(float) for c in covs}, struct,
