@@ -17,7 +17,8 @@ from ..verdict import Noise
 from .bound import (Budget, DynBound, MULTISTABLE_SPREAD_FRACTION, UNIT, check_start_values, choose_modes, predictable,
                     row_variance)
 from .calibration import DynEvaluation, calibrate
-from .noise import detrended_by_run, noise_of, noise_rho, public_record, serial_noise, trajectory_noise
+from .noise import (check_rest_origin, detrended_by_run, noise_of, noise_rho, public_record, serial_noise,
+                    trajectory_noise)
 from .evaluation import (bootstrap_intervals, evaluate, held_out_record, knife_edge_records, refit_progression,
                          with_design_expectation)
 from .outliers import outlier_rows
@@ -32,6 +33,7 @@ def _setup(model: Model, df: pd.DataFrame, data_path: str, k_folds: int, seed: i
     crossval.require_groups(bound.groups()[0], "", str(data_path),
                             "conditions (drives)" if bound.kind == "progression" else "runs")
     noise = noise_of(bound)
+    check_rest_origin(bound)
     sigma = float(noise["sd"]) if noise["sd"] and np.isfinite(noise["sd"]) and noise["sd"] > 0 else 1.0
     if bound.kind == "trajectory":
         # first pass in position mode, then irregular runs by average velocity (the mode stays fixed)

@@ -13,6 +13,7 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
+from ...errors import InputError
 from ..residual_tests import correct_for_correlation, is_ordered, noise_estimate, replicate_groups, serial_correlation
 from .bound import (DynBound, MIN_NOISE_FRAMES, MULTISTABLE_SPREAD_FRACTION, frames_by_position, position_rows,
                     row_variance)
@@ -343,3 +344,49 @@ def noise_of(bound: DynBound) -> dict:
                  "method": f"{noise.get('method', '')}; no replicates, and the speed is not smooth between "
                            "neighbouring conditions: data spread, an upper bound of the noise"}
     return noise
+
+
+#: a trajectory frame at t = 0 more than this many times the position noise's upper bound from successive frames
+#: (:func:`check_rest_origin`) from the rest position is taken for a table whose positions are not measured from
+#: it. That bound holds the motion between frames (1.5-2 mm at 100 frames per second against a noise of 0.05-0.3
+#: mm in the benchmarks' tables), so only an origin far off is caught, and not a tracker's lost frame of a few mm
+#: (the outlier screen's: :func:`.outliers.outlier_rows`); differences of AR(1) noise understate its SD
+#: (by 0.38 at a lag-1 correlation of 0.8), which leaves a frame of a correct table beyond the threshold with
+#: p ~ 1e-4 at worst.
+ORIGIN_Z = 10.0
+
+
+def check_rest_origin(bound: DynBound) -> None:
+    """Raise InputError when a trajectory run's frame at t = 0 is far from the rest position.
+
+    Every run starts from rest at the origin at drive phase 0 (contract section 4; :func:`.bound.run_drift`), so its
+    position there is the camera's noise alone, whatever the parameters. The scale is the difference-based
+    estimate along time within each run (:func:`.residual_tests.noise_estimate`, runs never taken as replicates of
+    each other): an upper bound of the noise, free of any offset. A frame at time_s = 0 more than ORIGIN_Z times
+    that far from 0 [mm] is a table whose positions are measured from another origin (a tracker's image
+    coordinates), or a frame the tracker lost. Left in, every model misses by the offset, and diagnose named the
+    candidate that bends furthest towards it (four runs shifted by 0.7-55 mm, nothing missing: "adding
+    substrate_compliance cuts held-out RMSE from 35.7 to 35.4 mm"). Runs without a frame at t = 0 are not checked
+    (the capsule moves 0.6-3 mm within the first 10 ms at 20-40 Hz)."""
+    if bound.kind != "trajectory":
+        return
+    df = bound.df
+    at0 = np.flatnonzero(np.abs(df["time_s"].to_numpy(float)) <= 1e-9)
+    if not at0.size:
+        return
+    for col in ("capsule_mm", "magnet_mm"):
+        if col not in df.columns:
+            continue
+        sd = float(noise_estimate(df[["run", "time_s", col]].assign(drive=df["run"].astype(str)), col)["sd"])
+        if not (np.isfinite(sd) and sd > 0):
+            continue
+        x = df[col].to_numpy(float)[at0]
+        far = np.flatnonzero(np.isfinite(x) & (np.abs(x) > ORIGIN_Z * sd))
+        if far.size:
+            i = int(at0[far[0]])
+            raise InputError(
+                f"{bound.where}: column '{col}' row {i + 1}: run '{df['run'].iloc[i]}' is at {x[far[0]]:.4g} mm at "
+                f"time_s = 0, where every run starts from rest at the origin; that is {abs(x[far[0]]) / sd:.0f} "
+                f"times the position noise's upper bound ({sd:.3g} mm, from successive frames): measure each run's "
+                "positions from the capsule's rest position (subtract it), or drop the frame if the tracker lost the "
+                "marker there")
