@@ -62,7 +62,7 @@ def dynamics_verdict(base: DynEvaluation, cands: Sequence[dict], noise: dict, si
         t = tests[c["effect"].name]
         c["passes"], c["reason"] = bool(t.supported), t.reason
         c["f_test_p"], c["f_test_p_adjusted"] = t.p_value, t.p_adjusted
-    where = plain_summary(base, sigma, noise_rho(noise.get("correlated")), bool(noise.get("reliable", True)))
+    where = plain_summary(base, sigma, noise_rho(noise.get("correlated")), reliable)
     regime = None if v.outcome == "nothing_missing" else regime_of(base, sigma)
     msg = v.message
     if v.outcome != "nothing_missing":
