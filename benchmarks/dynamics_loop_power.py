@@ -91,17 +91,33 @@ def _model(tmp: Path, name: str, kind: str, effects, params, start: str = "rest"
     return build_model(tmp / f"{name}.yaml")
 
 
+def parse_case(spec: str) -> tuple[str, dict]:
+    """Split a case spec ``name`` or ``name@param=value+param=value`` (values overriding CASES[name]'s)."""
+    name, _, rest = spec.partition("@")
+    over = {}
+    for item in filter(None, rest.split("+")):
+        key, _, val = item.partition("=")
+        over[key] = float(val)
+    return name, over
+
+
 def data_set(tmp: Path, kind: str, case: str, seed: int, noise: float, design: str | None = None,
-             start: str = "rest") -> pd.DataFrame:
-    """Return the synthetic table of ``case`` (a plugin case's effect is registered only while it is made) on
-    ``design`` (a design CSV; None: the kind's default, above), progression run by protocol ``start``."""
+             start: str = "rest", pf_N: float = PF_N) -> pd.DataFrame:
+    """Return the synthetic table of ``case`` (a spec as parse_case reads it; a plugin case's effect is registered
+    only while it is made) on ``design`` (a design CSV; None: the kind's default, above), progression run by
+    protocol ``start``, the truth's Coulomb level ``pf_N`` [N]."""
+    case, over = parse_case(case)
     effects, params = CASES[case]
+    unknown = set(over) - set(params)
+    if unknown:
+        raise SystemExit(f"case {case!r}: no parameter {sorted(unknown)} (it has {sorted(params)})")
+    params = {**params, **over}
     plug = tmp / "coil_plugins.py"
     if case in NOT_BUILT_IN:
         plug.write_text(PLUGIN)
         registry.load_plugins([plug], entry_points=False)
     try:
-        truth = _model(tmp, f"truth_{case}", kind, effects, {"Pf_N": PF_N, **params}, start)
+        truth = _model(tmp, f"truth_{case}", kind, effects, {"Pf_N": pf_N, **params}, start)
         if kind == "trajectory":
             runs = pd.read_csv(design or ROOT / "configs" / "designs" / "trajectory_runs.csv")
             return DL.synthesize_trajectory(truth, runs, noise, 100.0, 1000 + seed)
@@ -115,13 +131,17 @@ def data_set(tmp: Path, kind: str, case: str, seed: int, noise: float, design: s
 
 
 def expected(case: str) -> str:
+    case = parse_case(case)[0]
     return "nothing_missing" if case == "null" else NOT_BUILT_IN.get(case, case)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--kind", default="trajectory", choices=("trajectory", "progression"))
-    ap.add_argument("--cases", default="", help="comma-separated (default: every case of the kind)")
+    ap.add_argument("--cases", default="", help="comma-separated (default: every case of the kind); a case may "
+                    "override its effect's values: speed_dependent_friction@a_mN=1.5+n=0.9")
+    ap.add_argument("--base-pf", type=float, default=PF_N, help="the truth's Coulomb level P_f [N] (and the base "
+                    "model's start value; default the contract's 7.8 mN)")
     ap.add_argument("--seeds", type=int, default=2)
     ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--noise", type=float, default=None, help="trajectory: position noise SD [mm] (default 0.3)")
@@ -133,22 +153,23 @@ def main() -> None:
     a = ap.parse_args()
     cases = [c for c in a.cases.split(",") if c] or [c for c in CASES if a.kind == "progression"
                                                      or c not in NOT_BUILT_IN]
-    if any(c not in CASES for c in cases) or (a.kind == "trajectory" and set(cases) & set(NOT_BUILT_IN)):
+    names = {parse_case(c)[0] for c in cases}
+    if names - set(CASES) or (a.kind == "trajectory" and names & set(NOT_BUILT_IN)):
         ap.error(f"--cases: choose from {sorted(CASES)} (plugin cases: progression only)")
     noise = a.noise if a.noise is not None else (0.3 if a.kind == "trajectory" else PROGRESSION_NOISE)
     out = Path(a.out or ROOT / "benchmarks" / f"dynamics_loop_power_{a.kind}_result.json")
     rows, t0 = [], time.perf_counter()
     with tempfile.TemporaryDirectory() as tmpd:
         tmp = Path(tmpd)
-        base = _model(tmp, "base", a.kind, [], {"Pf_N": {"value": PF_N, "free": True, "bounds": [0.0, 0.5]}},
+        base = _model(tmp, "base", a.kind, [], {"Pf_N": {"value": a.base_pf, "free": True, "bounds": [0.0, 0.5]}},
                       a.protocol)
         for seed in range(a.first_seed, a.first_seed + a.seeds):
             for case in cases:
-                df = data_set(tmp, a.kind, case, seed, noise, a.design, a.protocol)
-                path = tmp / f"{case}_{seed}_synthetic.csv"
+                df = data_set(tmp, a.kind, case, seed, noise, a.design, a.protocol, a.base_pf)
+                path = tmp / f"{parse_case(case)[0]}_{len(rows)}_{seed}_synthetic.csv"
                 df.to_csv(path, index=False)
                 t1 = time.perf_counter()
-                r = DL.run_diagnose(base, df, str(path), tmp / f"d_{case}_{seed}", k_folds=5, seed=0,
+                r = DL.run_diagnose(base, df, str(path), tmp / f"d_{len(rows)}_{seed}", k_folds=5, seed=0,
                                     figures=False, budget=DL.EFFORTS[a.effort])
                 v = r["verdict"]
                 said = (v["missing_effect"] or v["covariate"] if v["outcome"] in ("missing_effect", "not_built_in")
@@ -168,8 +189,9 @@ def main() -> None:
                 rec = {"what": f"power of the dynamics diagnose on {a.kind} data shaped like issue 12's checks",
                        "design": a.design or "default",
                        "design_rows": pd.read_csv(a.design).to_dict("records") if a.design else None,
-                       "protocol": a.protocol, "noise": noise, "effort": a.effort, "base_Pf_N": PF_N,
-                       "cases": {c: CASES[c] for c in cases},
+                       "protocol": a.protocol, "noise": noise, "effort": a.effort, "base_Pf_N": a.base_pf,
+                       "cases": {c: (CASES[parse_case(c)[0]][0], {**CASES[parse_case(c)[0]][1],
+                                                                   **parse_case(c)[1]}) for c in cases},
                        "data_sets": len(rows), "right": sum(x["right"] for x in rows),
                        "seconds": round(time.perf_counter() - t0, 1), "runs": rows}
                 out.write_text(json.dumps(rec, indent=1, default=str))
