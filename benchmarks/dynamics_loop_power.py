@@ -130,6 +130,20 @@ def data_set(tmp: Path, kind: str, case: str, seed: int, noise: float, design: s
             registry._LOADED_PLUGINS.discard(str(plug.resolve()))
 
 
+def with_origin(df: pd.DataFrame, origin: str) -> pd.DataFrame:
+    """Return trajectory table ``df`` with its positions as ``origin`` says (see --origin); others unchanged."""
+    if origin == "rest" or "run" not in df.columns or "time_s" not in df.columns:
+        return df
+    df = df.copy()
+    for col in ("capsule_mm", "magnet_mm"):
+        if col in df.columns:
+            if origin == "first_frame":
+                df[col] = df[col] - df.groupby("run")[col].transform("first")
+            else:
+                df.loc[df["time_s"].abs() <= 1e-12, col] = 0.0
+    return df
+
+
 def expected(case: str) -> str:
     case = parse_case(case)[0]
     return "nothing_missing" if case == "null" else NOT_BUILT_IN.get(case, case)
@@ -148,6 +162,10 @@ def main() -> None:
     ap.add_argument("--protocol", default="rest", choices=("rest", "up", "down"),
                     help="progression: how each condition is run (truth and base model file alike)")
     ap.add_argument("--design", default=None, help="a design CSV (default: the kind's, above)")
+    ap.add_argument("--origin", default="rest", choices=("rest", "first_frame", "exact_rest"),
+                    help="trajectory: positions as synth writes them (rest: the noise at every frame), each run "
+                    "zeroed at its first frame (first_frame: a tracker's positions minus the first frame's), or "
+                    "the frame at t = 0 written as exactly 0 (exact_rest: a simulator that records rest there)")
     ap.add_argument("--effort", default="full", choices=sorted(DL.EFFORTS))
     ap.add_argument("--out", default=None)
     a = ap.parse_args()
@@ -165,7 +183,8 @@ def main() -> None:
                       a.protocol)
         for seed in range(a.first_seed, a.first_seed + a.seeds):
             for case in cases:
-                df = data_set(tmp, a.kind, case, seed, noise, a.design, a.protocol, a.base_pf)
+                df = with_origin(data_set(tmp, a.kind, case, seed, noise, a.design, a.protocol, a.base_pf),
+                                 a.origin)
                 path = tmp / f"{parse_case(case)[0]}_{len(rows)}_{seed}_synthetic.csv"
                 df.to_csv(path, index=False)
                 t1 = time.perf_counter()
@@ -189,7 +208,8 @@ def main() -> None:
                 rec = {"what": f"power of the dynamics diagnose on {a.kind} data shaped like issue 12's checks",
                        "design": a.design or "default",
                        "design_rows": pd.read_csv(a.design).to_dict("records") if a.design else None,
-                       "protocol": a.protocol, "noise": noise, "effort": a.effort, "base_Pf_N": a.base_pf,
+                       "protocol": a.protocol, "origin": a.origin, "noise": noise, "effort": a.effort,
+                       "base_Pf_N": a.base_pf,
                        "cases": {c: (CASES[parse_case(c)[0]][0], {**CASES[parse_case(c)[0]][1],
                                                                    **parse_case(c)[1]}) for c in cases},
                        "data_sets": len(rows), "right": sum(x["right"] for x in rows),

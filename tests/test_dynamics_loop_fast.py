@@ -1276,7 +1276,8 @@ def _stub_bootstrap(monkeypatch, n):
         return SimpleNamespace(theta=np.array([0.5]))
 
     monkeypatch.setattr(DL.evaluation, "calibrate", refit)
-    bound = SimpleNamespace(free=[lin], kind="trajectory", simulate=lambda th, rows, classify=False: {"pred": pred})
+    bound = SimpleNamespace(free=[lin], kind="trajectory",
+                            simulate=lambda th, rows, classify=False, y=None: {"pred": pred})
 
     def make_ev(y, cv_sq):
         return SimpleNamespace(bound=bound, y=y, sigma=0.5, theta=np.array([0.5]), fit=SimpleNamespace(weights=None),
@@ -1943,7 +1944,7 @@ def test_a_response_multistable_at_the_fit_keeps_its_spread_held_out(monkeypatch
     y = rng.normal(0.0, sigma, n)
     y[7] = -0.25  # the data took the -0.5 mm/s attractor
 
-    def simulate(theta, rows=None, starts=False, classify=True):
+    def simulate(theta, rows=None, starts=False, classify=True, **_):
         pred, spread = np.zeros(n), np.zeros(n)
         pred[7], spread[7] = (56.0, 56.0) if theta[0] == 1.0 else (112.0, 0.0)  # the fit; a fold's refit
         return {"pred": pred, "spread": spread, "cls": np.array(["one_impact"] * n)}
@@ -1979,7 +1980,7 @@ def _jumpy_bound(jump):
     x = np.arange(1.0, 8.0)
     y = np.concatenate([2.0 * x * 0.3 + JUMPY_NOISE, [10.0, -20.0, 30.0]])
 
-    def simulate(theta, rows=None, classify=True, starts=False):
+    def simulate(theta, rows=None, classify=True, starts=False, **_):
         th = float(np.asarray(theta).ravel()[0])
         return {"pred": np.concatenate([2.0 * x * th, y[7:] + jump(th)]),
                 "spread": np.array([0.0] * 7 + [5.0] * 3),

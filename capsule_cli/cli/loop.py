@@ -146,6 +146,9 @@ def register(app: typer.Typer) -> None:
                        f"±{met['cv_rmse_se']:.2g} noise={met['noise_sd']:.4g} {met['unit']}", err=True)
             for line in free_parameter_lines(met.get("params", {})):
                 typer.echo(line, err=True)
+            if met.get("origins_fitted_mm"):
+                typer.echo("  origins fitted (runs zeroed at their first frame): " + ", ".join(
+                    f"{r} {v:+.3g}" for r, v in met["origins_fitted_mm"].items()) + " mm", err=True)
 
     @app.command("diagnose")
     def diagnose(

@@ -110,8 +110,8 @@ def calibrate(bound: DynBound, y: np.ndarray, sigma: float, rows=None, x0=None, 
     k = len(bound.free)
     start = bound.x0 if x0 is None else np.asarray(x0, float)
     if k == 0:
-        return Fit(np.array([], float), float(np.sum(_plain_sq(y, bound.simulate(None, rows, False), sigma, rows))),
-                   1, 0)
+        sim = bound.simulate(None, rows, False, y=y)
+        return Fit(np.array([], float), float(np.sum(_plain_sq(y, sim, sigma, rows))), 1, 0)
     if horizon and bound.kind == "trajectory" and not warm and budget.starts > 1 and HORIZON_PERIODS:
         # horizon continuation: the first few periods from rest first, then ever longer horizons
         extra_starts = list(extra_starts) + _horizon_starts(bound, y, sigma, rows, start, budget, seed, extra_starts,
@@ -128,7 +128,7 @@ def calibrate(bound: DynBound, y: np.ndarray, sigma: float, rows=None, x0=None, 
     def raw(u):
         th = to_theta(u)
         nfev[0] += 1
-        r = (y - bound.simulate(th, rows, classify=False)["pred"])[idx]
+        r = (y - bound.simulate(th, rows, classify=False, y=y)["pred"])[idx]
         return np.where(np.isfinite(r), r, big)
 
     def resid(u):
@@ -180,7 +180,7 @@ def calibrate(bound: DynBound, y: np.ndarray, sigma: float, rows=None, x0=None, 
         # the robust stage's scale and weights, from the start: the residual scale there (a noise SD from
         # differences is inflated where the speed jumps between neighbouring conditions) and each
         # condition's spread over starting states, so that chaotic conditions do not swamp the regular ones
-        sim0 = bound.simulate(to_theta(u0), rows, starts=True)
+        sim0 = bound.simulate(to_theta(u0), rows, starts=True, y=y)
         nfev[0] += 1
         r0 = np.nan_to_num((y - sim0["pred"])[idx], nan=big)
         s0 = min(sigma, 1.4826 * float(np.median(np.abs(r0))))
@@ -209,7 +209,7 @@ def calibrate(bound: DynBound, y: np.ndarray, sigma: float, rows=None, x0=None, 
             scale[0] = ROBUST_SCALE * s_fit
             best_u, _ = _nelder_mead(robust_cost, [best_u], max(budget.evals_per_param * k // 2, 2 * k + 2),
                                      COLD_STEP / 2, s_fit)
-        sim = bound.simulate(to_theta(best_u), rows, starts=True)
+        sim = bound.simulate(to_theta(best_u), rows, starts=True, y=y)
         nfev[0] += 1
         s_w = max(s_fit, 1e-12)
         w = s_w / np.sqrt(s_w ** 2 + np.nan_to_num(sim["spread"]) ** 2)
@@ -259,7 +259,7 @@ def _predictable_polish(bound: DynBound, y: np.ndarray, rows, idx: np.ndarray, r
     secondary constraint hidden in 40 conditions run by continuation down (19 predictable at the truth, noise
     0.5 mm/s) stopped 2-10 % off (G_2 0.1009 mm, k_b 105,639 N/m, c_b 0.373), in-sample RMSE on the
     predictable conditions 0.80 mm/s (0.56 at the truth); two rounds of this polish: 0.53."""
-    sim = bound.simulate(to_theta(u), rows, starts=True)
+    sim = bound.simulate(to_theta(u), rows, starts=True, y=y)
     nfev[0] += 1
     for _ in range(PREDICTABLE_ROUNDS):
         keep = predictable(sim, s)[idx]
@@ -268,7 +268,7 @@ def _predictable_polish(bound: DynBound, y: np.ndarray, rows, idx: np.ndarray, r
         u_p, c_p = _polish(lambda v: raw(v)[keep], u, None, limit)
         if np.array_equal(u_p, u):
             break
-        sim_p = bound.simulate(to_theta(u_p), rows, starts=True)
+        sim_p = bound.simulate(to_theta(u_p), rows, starts=True, y=y)
         nfev[0] += 1
         # the error model's noise SD: the polished conditions' residual SD when smaller (s, from the median
         # residual at u, holds the misfit the polish removes, and would over-weight the chaotic conditions)

@@ -23,7 +23,8 @@ from .evaluation import (bootstrap_intervals, evaluate, held_out_record, knife_e
                          with_design_expectation)
 from .outliers import outlier_rows
 from .report import (RUN_DRIFT_Z, RUN_MISFIT_Z, _frame_words, _plot_residuals, by_class, param_table, plain_summary,
-                     residual_frame, residual_schema, run_drift_records, run_drift_table)
+                     residual_frame, residual_schema, run_drift_records, run_drift_table, ORIGINS_MEANING,
+                     origins_fitted)
 from .verdicts import dynamics_covariates
 
 
@@ -76,6 +77,8 @@ def _metrics(ev: DynEvaluation, noise: dict, data_path: str, dhash: str, k_folds
     }
     if ev.bound.kind == "trajectory":
         rec["runs_compared_by"] = {r: mode for r, mode in ev.bound.modes.items()}
+        if origins_fitted(ev):
+            rec["origins_fitted_mm"], rec["origins_fitted_meaning"] = origins_fitted(ev), ORIGINS_MEANING
     return rec
 
 

@@ -30,7 +30,8 @@ from .evaluation import evaluate, held_out_record, knife_edge_records, refit_pro
 from .outliers import (OUTLIER_RULE, PROGRESSION_RULE, no_effect_named, outlier_rows, scattered_caveat, scattered_rows,
                        scattered_verdict)
 from .report import (_plot_residuals, by_class, diagnosis_markdown, drawn_left_out, param_table, residual_frame,
-                     residual_schema, run_drift_records, run_drift_table, summary_of)
+                     residual_schema, run_drift_records, run_drift_table, summary_of,
+                     ORIGINS_MEANING, origins_fitted)
 from .verdicts import column_probes, concentrated_verdict, dynamics_covariates, dynamics_verdict, left_out_level_verdict
 from .compare import _prov, _setup
 
@@ -54,7 +55,7 @@ def consistent_base(base: DynEvaluation, cands: Sequence[dict], budget: Budget, 
         vals = c["ev"].bound.values(c["ev"].theta)
         x = np.array([vals[k] for k in b.names], float)
         w = np.ones(base.y.size) if base.fit.weights is None else base.fit.weights
-        cost = float(np.sum(w ** 2 * _plain_sq(base.y, b.simulate(x, classify=False), base.sigma)))
+        cost = float(np.sum(w ** 2 * _plain_sq(base.y, b.simulate(x, classify=False, y=base.y), base.sigma)))
         if cost < best * (1 - 1e-9):
             best, who, x_best = cost, c["effect"].name, x
     if who is None:
@@ -470,7 +471,9 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
                         "bic": base.bic, "n_free": base.k, "params": param_table(base),
                         "held_out_if_true": held_out_record(base),
                         "by_response_class": by_class(base),
-                        "by_run": run_drift_records(run_drift_table(base, sig_v, rho))},
+                        "by_run": run_drift_records(run_drift_table(base, sig_v, rho)),
+                        **({"origins_fitted_mm": origins_fitted(base), "origins_fitted_meaning": ORIGINS_MEANING}
+                           if origins_fitted(base) else {})},
         "cv": {"folds": int(np.unique(folds).size), "groups": how},
         "candidates": [rec(c) for c in cands], "skipped_candidates": skipped,
         "residual_structure": struct,

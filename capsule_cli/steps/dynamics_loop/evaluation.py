@@ -36,7 +36,7 @@ def evaluate(bound: DynBound, sigma: float, folds, groups, x0=None, budget: Budg
             raise ModelNotRunnable(f"{bound.where}: model '{bound.model.name}' could not be run at any of the "
                                    f"{bound.n_sim} parameter points its calibration tried: "
                                    f"{bound.last_failure or 'every run failed'}")
-    sim = bound.simulate(fit.theta, starts=True) if sim is None else sim
+    sim = bound.simulate(fit.theta, starts=True, y=y) if sim is None else sim
     cv_pred = np.empty_like(y)
     cv_spread = np.zeros_like(y)
     fold_theta = {}
@@ -45,7 +45,7 @@ def evaluate(bound: DynBound, sigma: float, folds, groups, x0=None, budget: Budg
         train = np.flatnonzero(folds != f)
         if bound.free:
             th = calibrate(bound, y, sigma, train, fit.theta, budget, seed, warm=True, weights=fit.weights).theta
-            s = bound.simulate(th, test, starts=True)
+            s = bound.simulate(th, test, starts=True, y=y)
             fold_theta[f] = th
         else:
             s = sim
@@ -392,7 +392,7 @@ def held_out_of_truth(ev: DynEvaluation, budget: Budget, seed: int, draws: int =
         for f in np.unique(ev.folds):
             test, train = np.flatnonzero(ev.folds == f), np.flatnonzero(ev.folds != f)
             thf = calibrate(b, ys, sig, train, th, budget, seed, warm=True, weights=ev.fit.weights).theta
-            cvp[test] = b.simulate(thf, test, classify=False)["pred"][test]
+            cvp[test] = b.simulate(thf, test, classify=False, y=ys)["pred"][test]
         sq = np.where(np.isfinite(cvp), (ys - cvp) ** 2 * w, PENALTY * max(sig, 1.0) ** 2)
         out.append(math.sqrt(float(np.mean(sq))))
     return DesignDraws(tuple(out))
@@ -474,7 +474,7 @@ def refit_with_noise(ev: DynEvaluation, sigma: float, budget: Budget, seed: int)
         return old
     t0 = time.perf_counter()
     fit = calibrate(ev.bound, ev.y, sigma, None, ev.theta, replace(budget, starts=1), seed)
-    sim = ev.bound.simulate(fit.theta, starts=True)
+    sim = ev.bound.simulate(fit.theta, starts=True, y=ev.y)
     if not float(np.sum(_std_sq(ev.y, sim, sigma))) < old.rss - sigma ** 2:
         return replace(old, seconds=old.seconds + time.perf_counter() - t0)
     t_fit = time.perf_counter() - t0

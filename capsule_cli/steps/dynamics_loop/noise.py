@@ -367,7 +367,8 @@ def check_rest_origin(bound: DynBound) -> None:
     coordinates), or a frame the tracker lost. Left in, every model misses by the offset, and diagnose named the
     candidate that bends furthest towards it (four runs shifted by 0.7-55 mm, nothing missing: "adding
     substrate_compliance cuts held-out RMSE from 35.7 to 35.4 mm"). Runs without a frame at t = 0 are not checked
-    (the capsule moves 0.6-3 mm within the first 10 ms at 20-40 Hz)."""
+    (the capsule moves 0.6-3 mm within the first 10 ms at 20-40 Hz). A run zeroed at its first frame passes, and
+    its origin is fitted (:func:`.bound.zeroed_runs`)."""
     if bound.kind != "trajectory":
         return
     df = bound.df
@@ -388,5 +389,5 @@ def check_rest_origin(bound: DynBound) -> None:
                 f"{bound.where}: column '{col}' row {i + 1}: run '{df['run'].iloc[i]}' is at {x[far[0]]:.4g} mm at "
                 f"time_s = 0, where every run starts from rest at the origin; that is {abs(x[far[0]]) / sd:.0f} "
                 f"times the position noise's upper bound ({sd:.3g} mm, from successive frames): measure each run's "
-                "positions from the capsule's rest position (subtract it), or drop the frame if the tracker lost the "
-                "marker there")
+                "positions from the capsule's rest position (subtract it, or subtract the run's first frame: such a "
+                "run's origin is then fitted), or drop the frame if the tracker lost the marker there")

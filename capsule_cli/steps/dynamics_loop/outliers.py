@@ -98,7 +98,9 @@ def drift_frame_outliers(fits: Sequence[tuple[float, DynEvaluation]], best: DynE
     residual SD (:func:`standardised_residual_sd`) of ``best`` over the frames compared by position and not
     ``flagged`` (comparison rows) [mm]: the drift rows, which such frames move, are left out of it (with them, a
     frame 3 mm off at noise 0.1 mm was 10 SDs off, not 27). Where a run is chaotic the spread at T is
-    millimetres and nothing is flagged there; at t = 0 every path is at rest.
+    millimetres and nothing is flagged there; at t = 0 every path is at rest. A run zeroed at its first frame
+    (:func:`.bound.zeroed_runs`) is shifted by that frame's noise: its residuals are taken about their median over
+    the frames after t = 0 where its path is predictable (spread below sd), its drift row needing no origin.
 
     The frames H whose z under ``best`` (the best-fitting model tried) exceeds the outlier threshold at sd's
     degrees of freedom (Bonferroni over the table's frames, 2 %) are outliers unless another model tried
@@ -135,6 +137,12 @@ def drift_frame_outliers(fits: Sequence[tuple[float, DynEvaluation]], best: DynE
             sp_run = np.empty_like(sp)
             sp_run[o] = np.maximum.accumulate(np.nan_to_num(sp[o], nan=np.inf))
             res = d[b.response].to_numpy(float) - path
+            if run in getattr(ev.bound, "origin_runs", ()):
+                # a run zeroed at its first frame is shifted by that frame's noise: its offset, the median
+                # residual over the frames after t = 0 where its path is predictable (the one tested may be off)
+                early = (t > 1e-9) & (sp_run < sd)
+                if early.sum() >= 3:
+                    res = res - float(np.median(res[early]))
             paths[key] = (res, np.abs(res) / np.sqrt(sd ** 2 + sp_run ** 2))
         return paths[key]
 

@@ -169,6 +169,18 @@ def run_drift_table(ev: DynEvaluation, sigma: float, rho: float = 0.0) -> pd.Dat
     return per
 
 
+#: how a fitted origin is stated (compare's metrics, diagnosis.json and .md)
+ORIGINS_MEANING = ("runs whose positions were measured from their own first frame (the capsule exactly 0 at "
+                   "time_s = 0): the model's positions of each are moved by its least-squares offset [mm], which the "
+                   "first frame's noise puts there; a run compared by its drift needs none")
+
+
+def origins_fitted(ev: DynEvaluation) -> dict:
+    """Return {run: offset [mm]} of the trajectory runs whose origin ``ev``'s fit profiled (:meth:`DynBound.
+    _with_origins`); empty when none."""
+    return {str(r): float(v) for r, v in (ev.sim.get("origin_mm") or {}).items()}
+
+
 def run_drift_records(per: pd.DataFrame) -> list[dict]:
     """Return :func:`run_drift_table`'s rows as JSON records (run, drive, class, frames, rate ± SE, RMS, drifts)."""
     keep = [c for c in ("run", "f_Hz", "Pd_N", "response_class", "frames", "rate_mm_s", "rate_se_mm_s",
@@ -356,6 +368,9 @@ def diagnosis_markdown(r: dict) -> str:
         what = "Runs" if r.get("kind") == "trajectory" else "Conditions"
         lines += ["", f"{what} on a knife edge of {r['candidates'][0]['effect']}'s parameters: " + "; ".join(knife)
                   + "."]
+    if r.get("model_as_is", {}).get("origins_fitted_mm"):
+        lines += ["", "Origins fitted (model as is; " + ORIGINS_MEANING + "): "
+                  + ", ".join(f"{k} {v:+.3g} mm" for k, v in r["model_as_is"]["origins_fitted_mm"].items()) + "."]
     if r.get("runs_compared_by"):
         lines += ["", "Runs compared by: " + ", ".join(f"{k}: {v}" for k, v in r["runs_compared_by"].items())
                   + f" ({r.get('runs_compared_by_from', '')})."]
@@ -459,6 +474,7 @@ def drawn_left_out(ev: DynEvaluation, left_out: Sequence[dict]) -> list[dict]:
         if key in runs and "time_s" in o and b.response in o:
             try:
                 pred = float(b.positions_mm(ev.theta, runs[key], [float(o["time_s"])])[0])
+                pred += ((getattr(ev, "sim", None) or {}).get("origin_mm") or {}).get(runs[key], 0.0)  # origin fitted
             except (InputError, RuntimeError, ValueError, FloatingPointError):
                 pred = math.nan
             if math.isfinite(pred):
