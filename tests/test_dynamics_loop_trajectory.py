@@ -314,6 +314,14 @@ def test_a_run_zeroed_at_its_first_frame_has_its_origin_profiled(tmp_path):
     rows = np.flatnonzero(a)[:20]
     part = b.simulate(None, rows, classify=False, y=y)
     assert part["origin_mm"]["a"] == pytest.approx(float(np.mean(y[rows] - plain[rows])), abs=1e-12)
+    # the zeroed run's frame at t = 0 is no measurement, so never an outlier; run b's frame at t = 0 may be one
+    from types import SimpleNamespace
+
+    from capsule_cli.steps.dynamics_loop.outliers import flaggable
+
+    can = flaggable(SimpleNamespace(bound=b, sim={"spread": np.zeros(len(b.rows))}), 0.3)
+    at0 = {r: j for j, (_, r, i) in enumerate(b.rows) if b.df["time_s"].iloc[i] == 0.0}
+    assert not can[at0["a"]] and can[at0["b"]] and can.sum() == len(b.rows) - 1
 
 
 def test_null_runs_zeroed_at_their_first_frames_are_fitted_to_the_noise(tmp_path):

@@ -21,13 +21,18 @@ def flaggable(ev: DynEvaluation, s: float) -> np.ndarray:
     :func:`fit_outlier_rows` may flag: a predicted spread over windows and starting states below
     MULTISTABLE_SPREAD_FRACTION x ``s`` (the noise SD, response unit), not on a knife edge, and for a
     trajectory a frame compared by position (not a run's average-velocity row: the frames it is taken from are
-    screened by :func:`drift_frame_outliers`)."""
+    screened by :func:`drift_frame_outliers`), but not the frame at t = 0 of a run zeroed there (:func:`.bound.
+    zeroed_runs`: its 0 is the zeroing's, and leaving it out would lose the mark of the run's fitted origin)."""
     can = np.nan_to_num(np.asarray(ev.sim["spread"], float)) < MULTISTABLE_SPREAD_FRACTION * s
     if "knife_edge" in ev.sim:
         can &= ~np.asarray(ev.sim["knife_edge"], bool)
     if ev.bound.kind == "trajectory":
         # a frame compared by position (a tracking error is a frame's); a run's drift rate holds all its frames
         can &= frames_by_position(ev.bound.rows)
+        zeroed = getattr(ev.bound, "origin_runs", ())
+        if zeroed:  # a zeroed run's frame at t = 0 is 0 by construction, not a measurement: never an outlier
+            t = ev.bound.df["time_s"].to_numpy(float)
+            can &= ~np.array([r in zeroed and abs(t[i]) <= 1e-9 for _, r, i in ev.bound.rows], bool)
     return can
 
 
