@@ -224,6 +224,11 @@ def check_start_values(model: Model) -> None:
                     f"{model.path}: params: ")
 
 
+def at_rest(t_s) -> np.ndarray:
+    """Return which frame times ``t_s`` [s] are the run's start, t = 0 (to 1 ns), where every run is at rest."""
+    return np.abs(np.asarray(t_s, float)) <= 1e-9
+
+
 def zeroed_runs(runs, response: str) -> frozenset:
     """Return the trajectory runs (labels) whose ``response`` position at time_s = 0 is exactly 0 while some later
     frame is not: runs whose positions were measured from their own first frame.
@@ -240,7 +245,7 @@ def zeroed_runs(runs, response: str) -> frozenset:
         if response not in d.columns:
             continue
         t, x = d["time_s"].to_numpy(float), d[response].to_numpy(float)
-        at0 = np.abs(t) <= 1e-9
+        at0 = at_rest(t)
         if at0.any() and np.all(x[at0] == 0.0) and np.any(np.isfinite(x[~at0]) & (x[~at0] != 0.0)):
             out.append(str(r))
     return frozenset(out)

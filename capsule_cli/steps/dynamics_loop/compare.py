@@ -77,8 +77,9 @@ def _metrics(ev: DynEvaluation, noise: dict, data_path: str, dhash: str, k_folds
     }
     if ev.bound.kind == "trajectory":
         rec["runs_compared_by"] = {r: mode for r, mode in ev.bound.modes.items()}
-        if origins_fitted(ev):
-            rec["origins_fitted_mm"], rec["origins_fitted_meaning"] = origins_fitted(ev), ORIGINS_MEANING
+        origins = origins_fitted(ev)
+        if origins:
+            rec["origins_fitted_mm"], rec["origins_fitted_meaning"] = origins, ORIGINS_MEANING
     return rec
 
 

@@ -459,6 +459,7 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
                 "held_out_if_true": held_out_record(c["ev"]),
                 "params": {k: v for k, v in pt.items() if v["owner"] == c["effect"].name}}
 
+    origins = origins_fitted(base)
     result = {
         "model": model.name, "model_file": model.path, "model_hash": model.hash, "kind": model.kind,
         "base": model.base.name, "effects": model.effect_names, "data": str(data_path), "data_hash": dh,
@@ -472,8 +473,8 @@ def run_diagnose(model: Model, df: pd.DataFrame, data_path: str, out_dir, write_
                         "held_out_if_true": held_out_record(base),
                         "by_response_class": by_class(base),
                         "by_run": run_drift_records(run_drift_table(base, sig_v, rho)),
-                        **({"origins_fitted_mm": origins_fitted(base), "origins_fitted_meaning": ORIGINS_MEANING}
-                           if origins_fitted(base) else {})},
+                        **({"origins_fitted_mm": origins, "origins_fitted_meaning": ORIGINS_MEANING}
+                           if origins else {})},
         "cv": {"folds": int(np.unique(folds).size), "groups": how},
         "candidates": [rec(c) for c in cands], "skipped_candidates": skipped,
         "residual_structure": struct,

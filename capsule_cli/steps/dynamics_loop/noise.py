@@ -15,7 +15,7 @@ import pandas as pd
 
 from ...errors import InputError
 from ..residual_tests import correct_for_correlation, is_ordered, noise_estimate, replicate_groups, serial_correlation
-from .bound import (DynBound, MIN_NOISE_FRAMES, MULTISTABLE_SPREAD_FRACTION, frames_by_position, position_rows,
+from .bound import (DynBound, at_rest, MIN_NOISE_FRAMES, MULTISTABLE_SPREAD_FRACTION, frames_by_position, position_rows,
                     row_variance)
 from .calibration import DynEvaluation
 
@@ -372,7 +372,7 @@ def check_rest_origin(bound: DynBound) -> None:
     if bound.kind != "trajectory":
         return
     df = bound.df
-    at0 = np.flatnonzero(np.abs(df["time_s"].to_numpy(float)) <= 1e-9)
+    at0 = np.flatnonzero(at_rest(df["time_s"]))
     if not at0.size:
         return
     for col in ("capsule_mm", "magnet_mm"):

@@ -11,7 +11,8 @@ import numpy as np
 
 from ..residual_tests import OUTLIER_ALPHA, esd_select, max_outliers, outlier_threshold
 from ..verdict import ALPHA_STRUCTURE, COLLINEAR_R, collinear_with
-from .bound import MULTISTABLE_SPREAD_FRACTION, drift_weights, frames_by_position, position_horizon_s, row_variance
+from .bound import (MULTISTABLE_SPREAD_FRACTION, at_rest, drift_weights, frames_by_position, position_horizon_s,
+                    row_variance)
 from .calibration import DynEvaluation
 from .noise import _model_label, residual_fits, standardised_residual_sd
 
@@ -31,8 +32,8 @@ def flaggable(ev: DynEvaluation, s: float) -> np.ndarray:
         can &= frames_by_position(ev.bound.rows)
         zeroed = getattr(ev.bound, "origin_runs", ())
         if zeroed:  # a zeroed run's frame at t = 0 is 0 by construction, not a measurement: never an outlier
-            t = ev.bound.df["time_s"].to_numpy(float)
-            can &= ~np.array([r in zeroed and abs(t[i]) <= 1e-9 for _, r, i in ev.bound.rows], bool)
+            first = at_rest(ev.bound.df["time_s"])
+            can &= ~np.array([r in zeroed and first[i] for _, r, i in ev.bound.rows], bool)
     return can
 
 
@@ -145,7 +146,7 @@ def drift_frame_outliers(fits: Sequence[tuple[float, DynEvaluation]], best: DynE
             if run in getattr(ev.bound, "origin_runs", ()):
                 # a run zeroed at its first frame is shifted by that frame's noise: its offset, the median
                 # residual over the frames after t = 0 where its path is predictable (the one tested may be off)
-                early = (t > 1e-9) & (sp_run < sd)
+                early = ~at_rest(t) & (sp_run < sd)
                 if early.sum() >= 3:
                     res = res - float(np.median(res[early]))
             paths[key] = (res, np.abs(res) / np.sqrt(sd ** 2 + sp_run ** 2))
